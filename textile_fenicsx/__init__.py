@@ -1,0 +1,26 @@
+"""textile_fenicsx: predicts the real geometry of woven textiles by plate energy minimisation.
+
+Data flows one way (DESIGN.md section 2):
+textile model -> projected mesh (`textile_fenicsx.meshes`) -> UFL forms (`textile_fenicsx.forms`)
+-> solve -> corrected textile -> exports.
+"""
+
+from pathlib import Path as _Path
+
+__version__ = "0.1.0"
+
+
+def _mount_source_subpackages() -> None:
+    """Make `forms/` and `meshes/` import as `textile_fenicsx.forms` and `textile_fenicsx.meshes`.
+
+    An install maps those top-level folders inside the package (pyproject.toml, package-dir).
+    In a source checkout they sit beside it; adding the checkout to this package's search path
+    gives the same import names without installing.
+    """
+    here = _Path(__file__).resolve().parent
+    top = here.parent
+    if not (here / "forms").is_dir() and (top / "forms" / "__init__.py").is_file():
+        __path__.append(str(top))  # noqa: F821 (the package's own __path__)
+
+
+_mount_source_subpackages()

@@ -1,0 +1,3 @@
+from textile_fenicsx.cli import main
+
+raise SystemExit(main())

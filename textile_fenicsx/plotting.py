@@ -1,0 +1,95 @@
+"""Off-screen pictures with pyvista.
+
+Debian's VTK renders only through X11, and segfaults rather than raising without a display
+(DESIGN.md section 10). `offscreen()` starts a private Xvfb when no DISPLAY is set (Xvfb picks a
+free display number itself, so concurrent runs do not collide) and stops it afterwards.
+"""
+
+import contextlib
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+import dolfinx
+
+
+@contextlib.contextmanager
+def offscreen():
+    """Provide an X display for VTK for the duration of the block."""
+    if os.environ.get("DISPLAY"):
+        yield os.environ["DISPLAY"]
+        return
+    if shutil.which("Xvfb") is None:
+        raise RuntimeError("pictures need an X server: install Xvfb (Debian package xvfb) or set DISPLAY")
+    read, write = os.pipe()
+    proc = subprocess.Popen(
+        ["Xvfb", "-displayfd", str(write), "-screen", "0", "1600x1200x24", "-nolisten", "tcp"],
+        pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    os.close(write)
+    try:
+        with os.fdopen(read) as f:
+            number = f.readline().strip()
+        if not number:
+            raise RuntimeError("Xvfb did not start (no display number reported)")
+        os.environ["DISPLAY"] = f":{number}"
+        yield os.environ["DISPLAY"]
+    finally:
+        os.environ.pop("DISPLAY", None)
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def gather_p1_surface(u: dolfinx.fem.Function, root: int = 0):
+    """Gather the owned cells of a scalar field's mesh, with u at their vertices, on rank `root`.
+
+    Returns (points (N, 3), triangles (M, 3), values (N,)) on `root` and None elsewhere. Vertices on
+    rank boundaries appear once per rank: fine for pictures, not for computation.
+    """
+    msh = u.function_space.mesh
+    tdim = msh.topology.dim
+    n_owned = msh.topology.index_map(tdim).size_local
+    x_dofs = msh.geometry.dofmap[:n_owned, :3]
+    local_nodes, tri = np.unique(x_dofs, return_inverse=True)
+    points = msh.geometry.x[local_nodes]
+    values = np.empty(len(local_nodes))
+    # Evaluate u at the mesh nodes through a P1 interpolant (exact at vertices for Lagrange spaces).
+    V1 = dolfinx.fem.functionspace(msh, ("Lagrange", 1))
+    u1 = dolfinx.fem.Function(V1)
+    u1.interpolate(u)
+    # P1 dofs of a degree-1 mesh coincide with geometry nodes cell by cell.
+    cell_dofs = V1.dofmap.list[:n_owned]
+    values[tri.reshape(-1, 3)] = u1.x.array[cell_dofs]
+    parts = msh.comm.gather((points, tri.reshape(-1, 3), values), root=root)
+    if msh.comm.rank != root:
+        return None
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts[:-1]])
+    return (np.vstack([p[0] for p in parts]),
+            np.vstack([p[1] + o for p, o in zip(parts, offsets)]),
+            np.concatenate([p[2] for p in parts]))
+
+
+def plot_height_field(u: dolfinx.fem.Function, path: Path, title: str, warp: float = 1.0) -> None:
+    """Write a PNG of a scalar height field over its 2D mesh, warped by `warp` (collective)."""
+    gathered = gather_p1_surface(u)
+    if gathered is None:
+        return
+    import pyvista
+
+    points, triangles, values = gathered
+    cells = np.hstack([np.full((len(triangles), 1), 3), triangles]).ravel()
+    grid = pyvista.PolyData(points.copy(), faces=cells)
+    grid.point_data[u.name] = values
+    grid.points[:, 2] = warp * values
+    with offscreen():
+        plotter = pyvista.Plotter(off_screen=True, window_size=(1200, 900))
+        plotter.add_mesh(grid, scalars=u.name, cmap="viridis", show_edges=True, edge_color="grey",
+                         line_width=0.3, scalar_bar_args={"title": u.name})
+        plotter.add_text(title, font_size=12)
+        plotter.view_isometric()
+        plotter.screenshot(str(path))
+        plotter.close()

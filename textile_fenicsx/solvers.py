@@ -1,0 +1,25 @@
+"""PETSc solver options (plain dicts) and the checks every solve goes through."""
+
+import numpy as np
+from petsc4py import PETSc
+
+# Sparse direct solves: iterative solvers do poorly on the 4th-order plate operator (DESIGN.md 6).
+DIRECT_LU = {
+    "ksp_type": "preonly",
+    "pc_type": "lu",
+    "pc_factor_mat_solver_type": "mumps",
+}
+
+
+class SolverError(RuntimeError):
+    """A linear or nonlinear solve did not converge, or gave a non-finite answer."""
+
+
+def check_converged(ksp: PETSc.KSP, what: str) -> None:
+    """Raise SolverError unless the KSP converged (collective: every rank sees the same reason)."""
+    reason = ksp.getConvergedReason()
+    if reason <= 0:
+        raise SolverError(f"{what}: linear solve failed, KSP converged reason {reason}")
+    norm = ksp.getSolution().norm()
+    if not np.isfinite(norm):
+        raise SolverError(f"{what}: the solution is not finite (norm {norm})")
