@@ -1,0 +1,26 @@
+"""The project's error types: every bad input ends in one of these, with the culprit named."""
+
+
+class TextileError(ValueError):
+    """A textile model, file or parameter that cannot be used; the message names the culprit."""
+
+
+class FormatError(TextileError):
+    """A malformed, truncated or unsupported input file (.tg3, TOML, JSON)."""
+
+
+class GeometryError(TextileError):
+    """Geometry the method cannot handle (too steep, no stacking order, empty footprint...)."""
+
+
+def check_positive(name: str, value, allow_zero: bool = False) -> float:
+    """Return value as a float if it is finite and > 0 (>= 0 with allow_zero); else raise TextileError."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TextileError(f"{name} must be a number, got {value!r}") from None
+    if not (v == v) or v in (float("inf"), float("-inf")):
+        raise TextileError(f"{name} must be finite, got {value!r}")
+    if v < 0 or (v == 0 and not allow_zero):
+        raise TextileError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+    return v

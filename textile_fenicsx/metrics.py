@@ -1,0 +1,100 @@
+"""Metrics of a textile model (DESIGN.md section 8), measured on the model, not on a FE mesh.
+
+Columns on an n x n cell-centred grid of the unit cell give every yarn interval over each point;
+clipped to the cell's z range when it has one. Then:
+- yarn volume: sum over points of interval lengths x the area a point represents;
+- interpenetration: the length of z inside two or more yarns (volume: its integral; max depth: its
+  maximum), and per yarn pair the overlap max(0, min(top_a, top_b) - max(bot_a, bot_b));
+- thickness: highest top - lowest bottom; crimp: centreline length / in-plane length - 1;
+- fibre volume fraction: sum of yarn volume x (fibre area / section area) over cell volume, when every
+  yarn has fibre data.
+"""
+
+import numpy as np
+
+from textile_fenicsx.textile import Columns, Textile
+
+
+def _clipped(textile: Textile, col: Columns) -> tuple[np.ndarray, np.ndarray]:
+    bot, top = col.bottom, col.top
+    if textile.cell.z_range is not None:
+        lo, hi = textile.cell.z_range
+        bot, top = np.clip(bot, lo, hi), np.clip(top, lo, hi)
+    return bot, top
+
+
+def coverage_depth(n_points: int, point: np.ndarray, bottom: np.ndarray, top: np.ndarray,
+                   at_least: int = 2) -> np.ndarray:
+    """Per point, the length of z covered by at least `at_least` of the given intervals."""
+    z = np.concatenate((bottom, top))
+    p = np.concatenate((point, point))
+    step = np.concatenate((np.ones_like(bottom), -np.ones_like(top)))
+    order = np.lexsort((-step, z, p))  # at equal z, openings before closings
+    z, p, step = z[order], p[order], step[order]
+    count = np.cumsum(step)
+    gap = np.diff(z, append=z[-1:] if len(z) else z)
+    same = np.r_[p[1:] == p[:-1], False]
+    covered = np.where(same & (count >= at_least), gap, 0.0)
+    return np.bincount(p, weights=covered, minlength=n_points)
+
+
+def crimp(textile: Textile) -> list[float]:
+    """Per yarn: centreline length over its in-plane (xy-projected) length, minus 1."""
+    out = []
+    for y in textile.yarns:
+        s, cum = y.length_table()
+        pos, _ = y.centreline(s)
+        flat = np.sum(np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=1))
+        out.append(float(cum[-1] / flat - 1) if flat > 0 else float("inf"))
+    return out
+
+
+def measure(textile: Textile, n: int = 200) -> dict:
+    """The metrics of the textile as a JSON-ready dict (mm, mm^3), sampled on an n x n grid."""
+    xy, dA = textile.cell.grid(n)
+    col = textile.columns(xy)
+    bot, top = _clipped(textile, col)
+    length = top - bot
+    n_yarns = len(textile.yarns)
+    per_yarn = np.bincount(col.yarn, weights=length, minlength=n_yarns) * dA
+    depth = coverage_depth(len(xy), col.point, bot, top)
+
+    pairs = {}
+    # rows are sorted by point: pair every row with the later rows of the same point
+    for shift in range(1, max(2, int(np.bincount(col.point).max()) if len(col.point) else 1)):
+        a, b = np.arange(len(col.point) - shift), np.arange(shift, len(col.point))
+        same = (col.point[a] == col.point[b]) & (col.yarn[a] != col.yarn[b])
+        a, b = a[same], b[same]
+        ov = np.minimum(top[a], top[b]) - np.maximum(bot[a], bot[b])
+        pos = ov > 0
+        for ya, yb, o in zip(col.yarn[a][pos], col.yarn[b][pos], ov[pos]):
+            key = (int(min(ya, yb)), int(max(ya, yb)))
+            v, d = pairs.get(key, (0.0, 0.0))
+            pairs[key] = (v + o * dA, max(d, o))
+
+    z_lo, z_hi = (bot.min(), top.max()) if len(bot) else (0.0, 0.0)
+    result = {
+        "yarn_volume": {"total": float(per_yarn.sum()), "per_yarn": per_yarn.tolist()},
+        "interpenetration": {
+            "volume": float(depth.sum() * dA),
+            "max_depth": float(depth.max()) if len(depth) else 0.0,
+            "pairs": [{"yarns": list(k), "volume": v, "max_depth": d} for k, (v, d) in sorted(pairs.items())],
+        },
+        "thickness": float(z_hi - z_lo),
+        "crimp": crimp(textile),
+        "vf": fibre_volume_fraction(textile, per_yarn, float(z_hi - z_lo)),
+        "sampling": {"grid": [n, n], "cell_area_per_sample": dA, "odd_parity_columns": col.odd},
+    }
+    return result
+
+
+def fibre_volume_fraction(textile: Textile, yarn_volumes: np.ndarray, thickness: float) -> float | None:
+    """Fibre volume over the cell's volume (cell area x thickness); None without fibre data."""
+    if thickness <= 0 or any(y.fibres is None for y in textile.yarns):
+        return None
+    fibre = 0.0
+    for y, v in zip(textile.yarns, yarn_volumes):
+        count, diameter = y.fibres
+        section_area = np.mean([s.area() for s in y.section.sections()])
+        fibre += v * count * np.pi * diameter**2 / 4 / section_area
+    return float(fibre / (textile.cell.area * thickness))

@@ -1,0 +1,198 @@
+"""Yarn cross-sections, with TexGen's meaning of width, height, power and distortion.
+
+A section is a closed curve in the section plane, in coordinates (s, u): u along the yarn's up
+vector, s along side = tangent x up (for a yarn along +x with up +z, s points to -y). Every section
+is sampled anticlockwise in (s, u) starting at its +s extreme (TexGen's t = 0), so sections of one
+yarn can be blended point by point.
+"""
+
+from dataclasses import dataclass, field
+from math import gamma, pi, sqrt
+
+import numpy as np
+
+from textile_fenicsx.errors import TextileError, check_positive
+
+
+class Section:
+    """Base class: subclasses define `curve(t)` for t in [0, 1) and their exact `area()`."""
+
+    width: float
+    height: float
+
+    def curve(self, t: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def points(self, n: int) -> np.ndarray:
+        """n points (n, 2) anticlockwise from t = 0, uniform in TexGen's parameter t."""
+        return self.curve(np.arange(n) / n)
+
+    def area(self) -> float:
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class Ellipse(Section):
+    """Ellipse of full width and height [mm]: s = w/2 cos(2 pi t), u = h/2 sin(2 pi t)."""
+
+    width: float
+    height: float
+
+    def __post_init__(self):
+        check_positive("ellipse width", self.width)
+        check_positive("ellipse height", self.height)
+
+    def curve(self, t):
+        a = 2 * pi * np.asarray(t, float)
+        return np.column_stack((0.5 * self.width * np.cos(a), 0.5 * self.height * np.sin(a)))
+
+    def area(self):
+        return pi * self.width * self.height / 4
+
+
+@dataclass(frozen=True)
+class PowerEllipse(Section):
+    """TexGen's power ellipse [mm]: s = w/2 cos(2 pi t), u = h/2 sign(sin) |sin(2 pi t)|^power.
+
+    power < 1 squares the section off (towards a rectangle), power > 1 sharpens it; x_offset moves
+    the top and bottom extremes sideways (TexGen's XOffset, mm).
+    """
+
+    width: float
+    height: float
+    power: float
+    x_offset: float = 0.0
+
+    def __post_init__(self):
+        check_positive("power-ellipse width", self.width)
+        check_positive("power-ellipse height", self.height)
+        check_positive("power-ellipse power", self.power)
+        if not np.isfinite(self.x_offset) or abs(self.x_offset) >= 0.5 * self.width:
+            raise TextileError(f"power-ellipse x_offset must lie within +-width/2, got {self.x_offset!r}")
+
+    def curve(self, t):
+        t = np.asarray(t, float)
+        a = 2 * pi * t
+        right = (t <= 0.25) | (t >= 0.75)
+        half_w = np.where(right, 0.5 * self.width - self.x_offset, 0.5 * self.width + self.x_offset)
+        s = half_w * np.cos(a) + self.x_offset
+        sin = np.sin(a)
+        u = 0.5 * self.height * np.sign(sin) * np.abs(sin) ** self.power
+        return np.column_stack((s, u))
+
+    def area(self):
+        # 4 * (w/2)(h/2) * int_0^{pi/2} sin^(p+1): the x_offset shears halves without changing area.
+        p = self.power
+        return self.width * self.height * sqrt(pi) / 2 * gamma(p / 2 + 1) / gamma(p / 2 + 1.5)
+
+
+@dataclass(frozen=True)
+class Lenticular(Section):
+    """Two circular arcs meeting at the sides [mm]; distortion moves the corners up by that much.
+
+    The upper arc has sagitta (height - 2 distortion)/2, the lower (height + 2 distortion)/2.
+    """
+
+    width: float
+    height: float
+    distortion: float = 0.0
+
+    def __post_init__(self):
+        check_positive("lenticular width", self.width)
+        check_positive("lenticular height", self.height)
+        if not np.isfinite(self.distortion) or abs(self.distortion) >= 0.5 * self.height:
+            raise TextileError(f"lenticular distortion must lie within +-height/2, got {self.distortion!r}")
+
+    def _arc(self, sagitta2):  # radius and centre offset of an arc with full chord width, 2*sagitta
+        radius = (self.width**2 + sagitta2**2) / (4 * sagitta2)
+        return radius, radius - 0.5 * self.height
+
+    def curve(self, t):
+        t = np.asarray(t, float)
+        out = np.empty((len(t), 2))
+        top = t < 0.5
+        for mask, dh, sign, angle in (
+            (top, self.height - 2 * self.distortion, 1.0, lambda t: (1 - 4 * t)),
+            (~top, self.height + 2 * self.distortion, -1.0, lambda t: (-3 + 4 * t)),
+        ):
+            radius, offset = self._arc(dh)
+            theta = angle(t[mask]) * np.arcsin(0.5 * self.width / radius)
+            out[mask, 0] = radius * np.sin(theta)
+            out[mask, 1] = sign * (radius * np.cos(theta) - offset)
+        return out
+
+    def area(self):
+        total = 0.0
+        for dh in (self.height - 2 * self.distortion, self.height + 2 * self.distortion):
+            s = dh / 2
+            r = (self.width**2 + dh**2) / (4 * dh)
+            total += r * r * np.arccos((r - s) / r) - (r - s) * sqrt(2 * r * s - s * s)
+        return float(total)
+
+
+@dataclass(frozen=True)
+class Polygon(Section):
+    """A polygon of (s, u) vertices [mm], anticlockwise, starting where blending should start."""
+
+    vertices: tuple = field(default=())
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, float)
+        if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3:
+            raise TextileError(f"polygon section needs at least 3 (s, u) points, got shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise TextileError("polygon section has a non-finite coordinate")
+        if _signed_area(v) <= 0:
+            raise TextileError("polygon section must run anticlockwise in (s, u) and enclose an area")
+        object.__setattr__(self, "vertices", tuple(map(tuple, v)))
+
+    @property
+    def width(self):
+        v = np.asarray(self.vertices)
+        return float(np.ptp(v[:, 0]))
+
+    @property
+    def height(self):
+        v = np.asarray(self.vertices)
+        return float(np.ptp(v[:, 1]))
+
+    def curve(self, t):
+        """Points at fraction t of the perimeter from the first vertex."""
+        v = np.asarray(self.vertices)
+        closed = np.vstack((v, v[:1]))
+        seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+        cum = np.concatenate(([0.0], np.cumsum(seg)))
+        arc = np.asarray(t, float) % 1.0 * cum[-1]
+        return np.column_stack((np.interp(arc, cum, closed[:, 0]), np.interp(arc, cum, closed[:, 1])))
+
+    def area(self):
+        return float(_signed_area(np.asarray(self.vertices)))
+
+
+def _signed_area(v: np.ndarray) -> float:
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def polygon_area(points: np.ndarray) -> float:
+    """Signed area of a closed polygon given by its vertices (n, 2), positive when anticlockwise."""
+    return _signed_area(np.asarray(points, float))
+
+
+def blend(p1: np.ndarray, p2: np.ndarray, u, ramped: bool = False, polar: bool = False) -> np.ndarray:
+    """Blend two sampled sections point by point (TexGen's interpolated yarn sections).
+
+    u in [0, 1] (scalar or per-station array broadcast against the points); ramped uses the
+    smoothstep 3u^2 - 2u^3; polar blends radius and angle instead of s and u.
+    """
+    u = np.asarray(u, float)[..., None, None] if np.ndim(u) else float(u)
+    if ramped:
+        u = 3 * u * u - 2 * u * u * u
+    if not polar:
+        return p1 + (p2 - p1) * u
+    r1, r2 = np.linalg.norm(p1, axis=-1), np.linalg.norm(p2, axis=-1)
+    a1, a2 = np.arctan2(p1[..., 1], p1[..., 0]), np.arctan2(p2[..., 1], p2[..., 0])
+    a2 = np.where(a2 - a1 > pi, a2 - 2 * pi, np.where(a1 - a2 > pi, a2 + 2 * pi, a2))
+    uu = u[..., 0] if np.ndim(u) else u
+    r, a = r1 + (r2 - r1) * uu, a1 + (a2 - a1) * uu
+    return np.stack((r * np.cos(a), r * np.sin(a)), axis=-1)

@@ -1,0 +1,316 @@
+"""The textile: a periodic unit cell and its yarns, with vectorised geometric queries.
+
+Every yarn surface is a tube of section polygons at stations along its centreline (spacing and
+points per section from `Resolution`), repeated by the yarn's repeat vectors. Queries:
+- `columns(xy)`: vertical rays through in-plane points; for each point every yarn interval over it
+  (bottom and top z), periodic images included;
+- `inside(points)`: which yarns contain 3D points; `fibre_direction(i, points)`: local fibre tangent;
+- `surface(i)`: a closed triangulated surface of yarn i clipped to the cell (pyvista PolyData).
+"""
+
+from dataclasses import dataclass, field
+from itertools import product
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.yarn import Yarn
+
+
+@dataclass(frozen=True)
+class Cell:
+    """The unit cell [x0, x0 + lx] x [y0, y0 + ly] in mm; z_range (zmin, zmax) clips if given."""
+
+    lx: float
+    ly: float
+    x0: float = 0.0
+    y0: float = 0.0
+    z_range: tuple | None = None
+
+    def __post_init__(self):
+        check_positive("cell size lx", self.lx)
+        check_positive("cell size ly", self.ly)
+        for name in ("x0", "y0"):
+            if not np.isfinite(getattr(self, name)):
+                raise TextileError(f"cell origin {name} must be finite, got {getattr(self, name)!r}")
+        if self.z_range is not None:
+            lo, hi = map(float, self.z_range)
+            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+                raise TextileError(f"cell z_range must be finite with zmax > zmin, got {self.z_range!r}")
+            object.__setattr__(self, "z_range", (lo, hi))
+
+    @property
+    def repeats(self) -> np.ndarray:
+        return np.array([[self.lx, 0.0, 0.0], [0.0, self.ly, 0.0]])
+
+    @property
+    def area(self) -> float:
+        return self.lx * self.ly
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        return self.x0, self.x0 + self.lx, self.y0, self.y0 + self.ly
+
+    def grid(self, n: int) -> tuple[np.ndarray, float]:
+        """Cell-centred n x n sample points (n*n, 2) and the area each represents."""
+        x = self.x0 + (np.arange(n) + 0.5) * self.lx / n
+        y = self.y0 + (np.arange(n) + 0.5) * self.ly / n
+        X, Y = np.meshgrid(x, y, indexing="ij")
+        return np.column_stack((X.ravel(), Y.ravel())), self.area / n**2
+
+
+@dataclass(frozen=True)
+class Resolution:
+    """How finely yarn surfaces are discretised: station spacing along the yarn [mm] and points
+    per section polygon (64 points: section area within 0.16 % of the smooth curve)."""
+
+    spacing: float = 0.1
+    section_points: int = 64
+
+    def __post_init__(self):
+        check_positive("resolution spacing", self.spacing)
+        if int(self.section_points) < 8:
+            raise TextileError(f"resolution section_points must be >= 8, got {self.section_points!r}")
+
+
+@dataclass
+class Columns:
+    """Vertical-ray answers: one row per (point, yarn, interval), sorted by point then yarn then z.
+
+    point: index of the query point; yarn: yarn index; bottom, top: z of the interval [mm].
+    odd: number of (point, yarn) columns whose crossing count was odd (a ray grazing the surface);
+    these keep their outermost crossings as one interval.
+    """
+
+    n_points: int
+    point: np.ndarray
+    yarn: np.ndarray
+    bottom: np.ndarray
+    top: np.ndarray
+    odd: int = 0
+
+    def envelope(self, n_yarns: int) -> tuple[np.ndarray, np.ndarray]:
+        """(n_points, n_yarns) arrays of each yarn's lowest bottom and highest top (NaN: not over)."""
+        bot = np.full((self.n_points, n_yarns), np.nan)
+        top = np.full((self.n_points, n_yarns), np.nan)
+        np.fmin.at(bot, (self.point, self.yarn), self.bottom)
+        np.fmax.at(top, (self.point, self.yarn), self.top)
+        return bot, top
+
+
+@dataclass(eq=False)
+class Textile:
+    """A unit cell with its yarns (mm, z through the thickness)."""
+
+    cell: Cell
+    yarns: list = field(default_factory=list)
+    name: str = "textile"
+    resolution: Resolution = field(default_factory=Resolution)
+
+    def __post_init__(self):
+        if not self.yarns:
+            raise TextileError(f"textile {self.name!r} has no yarns")
+        for i, y in enumerate(self.yarns):
+            if not isinstance(y, Yarn):
+                raise TextileError(f"textile {self.name!r}: yarn {i} is not a Yarn")
+            if not y.name:
+                y.name = f"yarn {i}"
+        self._triangles = {}
+
+    # --- periodic copies --------------------------------------------------------------------
+    def _translations(self, yarn: Yarn, bbox_lo: np.ndarray, bbox_hi: np.ndarray) -> list[np.ndarray]:
+        """Repeat translations of a yarn whose box (bbox of one period) meets the cell's box."""
+        reps = yarn.repeats if len(yarn.repeats) else np.zeros((1, 3))
+        x0, x1, y0, y1 = self.cell.bounds
+        reach = []
+        for r in reps:
+            size = np.linalg.norm(r[:2])
+            reach.append(range(-2, 3) if size > 0 else range(1))
+        out = []
+        for ks in product(*reach):
+            t = np.sum([k * r for k, r in zip(ks, reps)], axis=0)
+            lo, hi = bbox_lo + t, bbox_hi + t
+            if lo[0] <= x1 and hi[0] >= x0 and lo[1] <= y1 and hi[1] >= y0:
+                out.append(t)
+        return out
+
+    def triangles(self, i: int) -> np.ndarray:
+        """Triangles (T, 3, 3) of yarn i's surface over the cell, periodic copies included."""
+        if i not in self._triangles:
+            yarn = self.yarns[i]
+            verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
+            tris = _tube_triangles(verts, closed_ends=not yarn.periodic)
+            lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
+            copies = [tris + t for t in self._translations(yarn, lo, hi)]
+            self._triangles[i] = np.concatenate(copies) if copies else np.zeros((0, 3, 3))
+        return self._triangles[i]
+
+    # --- queries ----------------------------------------------------------------------------
+    def columns(self, xy, yarns=None) -> Columns:
+        """Vertical-ray intervals of every yarn (or those listed) over in-plane points xy (N, 2)."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        # A fixed irrational nudge keeps rays off triangle edges and vertices of structured tubes.
+        probe = xy + np.array([0.7548776662, 0.5698402910]) * 1e-7 * max(self.cell.lx, self.cell.ly)
+        rows = []
+        odd = 0
+        for i in range(len(self.yarns)) if yarns is None else yarns:
+            pidx, z = _vertical_hits(self.triangles(i), probe, self.resolution.spacing)
+            order = np.lexsort((z, pidx))
+            pidx, z = pidx[order], z[order]
+            starts = np.flatnonzero(np.r_[True, pidx[1:] != pidx[:-1]]) if len(pidx) else np.zeros(0, int)
+            counts = np.diff(np.r_[starts, len(pidx)])
+            rank = np.arange(len(pidx)) - np.repeat(starts, counts)
+            even = np.repeat(counts % 2 == 0, counts)
+            odd += int(np.sum(counts % 2 == 1))
+            # even columns: crossings pair up in order; odd: the outermost crossings form one interval
+            lo = even & (rank % 2 == 0)
+            rows.append((pidx[lo], np.full(lo.sum(), i), z[lo], z[np.flatnonzero(lo) + 1]))
+            first, last = starts[counts % 2 == 1], starts[counts % 2 == 1] + counts[counts % 2 == 1] - 1
+            rows.append((pidx[first], np.full(len(first), i), z[first], z[last]))
+        point, yarn, bottom, top = (np.concatenate(c) if rows else np.zeros(0) for c in zip(*rows))
+        order = np.lexsort((bottom, yarn, point))
+        return Columns(len(xy), point[order].astype(int), yarn[order].astype(int), bottom[order], top[order], odd)
+
+    def inside(self, points) -> np.ndarray:
+        """(N, n_yarns) booleans: is 3D point k inside yarn i."""
+        points = np.asarray(points, float).reshape(-1, 3)
+        col = self.columns(points[:, :2])
+        z = points[col.point, 2]
+        hit = (col.bottom <= z) & (z <= col.top)
+        out = np.zeros((len(points), len(self.yarns)), bool)
+        out[col.point[hit], col.yarn[hit]] = True
+        return out
+
+    def fibre_direction(self, i: int, points) -> np.ndarray:
+        """Unit fibre tangents (N, 3) of yarn i at the centreline points nearest to `points`.
+
+        points: (N, 2) in-plane (nearest in plan) or (N, 3) positions.
+        """
+        points = np.asarray(points, float)
+        dim = points.shape[-1]
+        yarn = self.yarns[i]
+        s = yarn.stations(self.resolution.spacing / 4)
+        pos, tan = yarn.centreline(s)
+        lo, hi = pos.min(axis=0), pos.max(axis=0)
+        shifts = self._translations(yarn, lo, hi) or [np.zeros(3)]
+        cloud = np.concatenate([pos + t for t in shifts])
+        tangents = np.tile(tan, (len(shifts), 1))
+        _, k = cKDTree(cloud[:, :dim]).query(points.reshape(-1, dim))
+        return tangents[k]
+
+    def surface(self, i: int, clip: bool = True):
+        """Closed triangulated surface of yarn i (pyvista PolyData), clipped to the cell when asked."""
+        import pyvista
+
+        yarn = self.yarns[i]
+        verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
+        if not yarn.periodic:
+            pieces = [_closed_tube(verts)]
+        else:
+            # Chain copies along the yarn's own period into one long capped tube per lateral shift.
+            P = yarn.period
+            lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
+            bases = {}
+            for t in self._translations(yarn, lo, hi):
+                k = int(np.round(t @ P / (P @ P)))
+                b = t - k * P
+                bases.setdefault(tuple(np.round(b, 9)), (b, []))[1].append(k)
+            pieces = []
+            for b, ks in bases.values():
+                chain = [verts + k * P + b for k in range(min(ks) - 1, max(ks) + 2)]
+                long = np.concatenate([chain[0]] + [c[1:] for c in chain[1:]])
+                pieces.append(_closed_tube(long))
+        out = []
+        for pts, faces in pieces:
+            poly = pyvista.PolyData(pts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
+            if clip:
+                x0, x1, y0, y1 = self.cell.bounds
+                planes = [("-x", (x0, 0, 0)), ("x", (x1, 0, 0)), ("-y", (0, y0, 0)), ("y", (0, y1, 0))]
+                if self.cell.z_range is not None:
+                    planes += [("-z", (0, 0, self.cell.z_range[0])), ("z", (0, 0, self.cell.z_range[1]))]
+                for normal, origin in planes:
+                    if poly.n_points == 0:
+                        break
+                    poly = poly.clip_closed_surface(normal=normal, origin=origin)
+            if poly.n_points:
+                out.append(poly.triangulate())
+        if not out:
+            return pyvista.PolyData()
+        return out[0].merge(out[1:]) if len(out) > 1 else out[0]
+
+
+def _tube_triangles(verts: np.ndarray, closed_ends: bool) -> np.ndarray:
+    """Triangles (T, 3, 3) of a structured tube (M stations, K points around)."""
+    pts, faces = _closed_tube(verts) if closed_ends else _open_tube(verts)
+    return pts[faces]
+
+
+def _open_tube(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    M, K, _ = verts.shape
+    idx = np.arange(M * K).reshape(M, K)
+    a, b = idx[:-1], idx[1:]
+    a1, b1 = np.roll(a, -1, axis=1), np.roll(b, -1, axis=1)
+    faces = np.concatenate([np.stack((a, b, b1), -1).reshape(-1, 3), np.stack((a, b1, a1), -1).reshape(-1, 3)])
+    return verts.reshape(-1, 3), faces
+
+
+def _closed_tube(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A tube capped at both ends by fans, oriented with outward normals."""
+    M, K, _ = verts.shape
+    pts, faces = _open_tube(verts)
+    c0, c1 = len(pts), len(pts) + 1
+    pts = np.vstack((pts, verts[0].mean(axis=0), verts[-1].mean(axis=0)))
+    k = np.arange(K)
+    cap0 = np.column_stack((np.full(K, c0), np.roll(k, -1), k))
+    cap1 = np.column_stack((np.full(K, c1), (M - 1) * K + k, (M - 1) * K + np.roll(k, -1)))
+    faces = np.vstack((faces, cap0, cap1))
+    tri = pts[faces]
+    signed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6
+    if signed < 0:
+        faces = faces[:, ::-1]
+    return pts, faces
+
+
+def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Crossings of vertical lines through pts (N, 2) with triangles (T, 3, 3).
+
+    Returns (point index, z) of every crossing. Triangles and points are matched through a uniform
+    grid of bins so the work grows with the number of crossings, not points x triangles.
+    """
+    if len(tris) == 0 or len(pts) == 0:
+        return np.zeros(0, int), np.zeros(0)
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    keep = np.abs(area2) > 1e-14 * bin_size**2
+    tris, area2 = tris[keep], area2[keep]
+    lo_p, hi_p = pts.min(axis=0), pts.max(axis=0)
+    nb = np.maximum(np.ceil((hi_p - lo_p) / bin_size).astype(int), 1)
+    pbin = np.minimum(((pts - lo_p) / bin_size).astype(int), nb - 1)
+    pid = pbin[:, 0] * nb[1] + pbin[:, 1]
+    order = np.argsort(pid, kind="stable")
+    spid = pid[order]
+    tlo = np.floor((tris[:, :, :2].min(axis=1) - lo_p) / bin_size).astype(int)
+    thi = np.floor((tris[:, :, :2].max(axis=1) - lo_p) / bin_size).astype(int)
+    tlo, thi = np.maximum(tlo, 0), np.minimum(thi, nb - 1)
+    ok = np.all(tlo <= thi, axis=1)
+    tri_ids = np.flatnonzero(ok)
+    span = thi[ok] - tlo[ok] + 1
+    counts = span[:, 0] * span[:, 1]
+    rep = np.repeat(np.arange(len(tri_ids)), counts)
+    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    bx = tlo[ok][rep, 0] + local // span[rep, 1]
+    by = tlo[ok][rep, 1] + local % span[rep, 1]
+    bid = bx * nb[1] + by
+    start = np.searchsorted(spid, bid, "left")
+    n = np.searchsorted(spid, bid, "right") - start
+    t_of = tri_ids[np.repeat(rep, n)]
+    p_of = order[np.repeat(start, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    T, p = tris[t_of], pts[p_of]
+    A, B, C = T[:, 0], T[:, 1], T[:, 2]
+    l1 = ((p[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (p[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])) / area2[t_of]
+    l2 = ((B[:, 0] - A[:, 0]) * (p[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (p[:, 0] - A[:, 0])) / area2[t_of]
+    l0 = 1 - l1 - l2
+    inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
+    z = l0 * A[:, 2] + l1 * B[:, 2] + l2 * C[:, 2]
+    return p_of[inside], z[inside]

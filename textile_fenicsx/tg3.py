@@ -1,0 +1,327 @@
+"""TexGen .tg3 (XML) in and out.
+
+Reading takes any textile TexGen saved with its yarns (2D weaves, orthogonal, layer-to-layer, plain
+CTextile...) as a generic yarn list: master nodes, repeats, interpolation, yarn sections, sections
+and the CDomainPlanes box. Elements without geometry (fibre distributions, section meshes, a weave's
+own pattern description) are skipped; anything else unknown is an error naming it.
+
+Writing produces a plain CTextile that TexGen 3.14 reads back without rebuilding it (the facts in
+shared/reference/README.md): mandatory yarn attributes, CDomainPlanes, and each yarn's own
+interpolation and sections (per-node polygons for corrected yarns).
+"""
+
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from textile_fenicsx.errors import FormatError, TextileError
+from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
+from textile_fenicsx.textile import Cell, Textile
+from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
+
+INTERPOLATION_IN = {"CInterpolationBezier": "bezier", "CInterpolationCubic": "cubic",
+                    "CInterpolationLinear": "linear"}
+INTERPOLATION_OUT = {v: k for k, v in INTERPOLATION_IN.items()}
+# Children that carry no geometry of the yarn or describe how a weave textile built its yarns.
+IGNORED_YARN_CHILDREN = {"FibreDistribution", "SectionMesh", "SlaveNode", "Mesh"}
+IGNORED_TEXTILE_CHILDREN = {"PatternCell", "XYarns", "YYarns", "XYarnData", "YYarnData", "Properties",
+                            "Layer", "Layers", "BinderYarns", "WarpYarns", "WeftYarns"}
+
+
+def _floats(text, where: str, n: int | None = None) -> np.ndarray:
+    if text is None:
+        raise FormatError(f"{where}: missing value")
+    try:
+        v = np.array([float(x) for x in str(text).replace(",", " ").split()])
+    except ValueError:
+        raise FormatError(f"{where}: not a list of numbers: {text!r}") from None
+    if n is not None and len(v) != n:
+        raise FormatError(f"{where}: expected {n} numbers, got {text!r}")
+    if not np.all(np.isfinite(v)):
+        raise FormatError(f"{where}: non-finite number in {text!r}")
+    return v
+
+
+def _attr(el, name: str, where: str, default=None, kind=float):
+    text = el.get(name)
+    if text is None:
+        if default is None:
+            raise FormatError(f"{where}: missing attribute {name}")
+        return default
+    try:
+        return kind(float(text)) if kind in (int, bool) else kind(text)
+    except ValueError:
+        raise FormatError(f"{where}: attribute {name}={text!r} is not a {kind.__name__}") from None
+
+
+def _section(el, where: str) -> Section:
+    kind = el.get("type")
+    where = f"{where} {kind}"
+    for child in el:
+        if child.tag not in IGNORED_YARN_CHILDREN and child.tag != "PolygonPoint":
+            raise FormatError(f"{where}: unsupported element <{child.tag}>")
+    try:
+        if kind == "CSectionEllipse":
+            return Ellipse(_attr(el, "Width", where), _attr(el, "Height", where))
+        if kind == "CSectionPowerEllipse":
+            return PowerEllipse(_attr(el, "Width", where), _attr(el, "Height", where),
+                                _attr(el, "Power", where), _attr(el, "XOffset", where, 0.0))
+        if kind == "CSectionLenticular":
+            if el.get("Radius") is not None and el.get("Offset") is not None:
+                r, o = _attr(el, "Radius", where), _attr(el, "Offset", where)
+                return Lenticular(2 * np.sqrt(r * r - o * o), 2 * (r - o))
+            return Lenticular(_attr(el, "Width", where), _attr(el, "Height", where),
+                              _attr(el, "Distortion", where, 0.0))
+        if kind == "CSectionPolygon":
+            pts = [_floats(p.get("value"), f"{where} PolygonPoint", 2) for p in el.findall("PolygonPoint")]
+            return Polygon(tuple(map(tuple, pts)))
+    except TextileError as e:
+        raise FormatError(f"{where}: {e}") from None
+    raise FormatError(f"{where}: unsupported section type {kind!r}")
+
+
+def _yarn_section(el, n_nodes: int, where: str):
+    kind = el.get("type")
+    where = f"{where} YarnSection {kind}"
+    ramped = bool(_attr(el, "Ramped", where, 0, int))
+    polar = bool(_attr(el, "Polar", where, 0, int))
+    if kind == "CYarnSectionConstant":
+        sec = el.find("Section")
+        if sec is None:
+            raise FormatError(f"{where}: no <Section>")
+        return ConstantSection(_section(sec, where))
+    if kind == "CYarnSectionInterpNode":
+        found = {}
+        for ns in el.findall("NodeSection"):
+            k = _attr(ns, "nodeindex", where, kind=int)
+            sec = ns.find("Section")
+            if sec is None:
+                raise FormatError(f"{where}: NodeSection {k} has no <Section>")
+            found[k] = _section(sec, f"{where} node {k}")
+        if sorted(found) != list(range(n_nodes)):
+            raise FormatError(f"{where}: needs one NodeSection per master node 0..{n_nodes - 1}, has {sorted(found)}")
+        return NodeSections(tuple(found[k] for k in range(n_nodes)), ramped, polar)
+    if kind == "CYarnSectionInterpPosition":
+        items = []
+        for ps in el.findall("PositionSection"):
+            sec = ps.find("Section")
+            if sec is None:
+                raise FormatError(f"{where}: PositionSection has no <Section>")
+            items.append((_attr(ps, "t", where), _section(sec, where)))
+        if not items:
+            raise FormatError(f"{where}: no PositionSection")
+        items.sort(key=lambda x: x[0])
+        return PositionSections(tuple(t for t, _ in items), tuple(s for _, s in items), ramped, polar)
+    raise FormatError(f"{where}: unsupported yarn section type {kind!r}")
+
+
+def _yarn(el, textile_where: str) -> Yarn:
+    where = f"{textile_where} Yarn {el.get('index', '?')}"
+    known = {"Interpolation", "YarnSection", "Repeat", "MasterNode"} | IGNORED_YARN_CHILDREN
+    for child in el:
+        if child.tag not in known:
+            raise FormatError(f"{where}: unsupported element <{child.tag}>")
+    nodes = sorted(el.findall("MasterNode"), key=lambda n: _attr(n, "index", where, kind=int))
+    if len(nodes) < 2:
+        raise FormatError(f"{where}: needs at least 2 MasterNode elements, has {len(nodes)}")
+    pos = np.array([_floats(n.get("Position"), f"{where} MasterNode {i} Position", 3) for i, n in enumerate(nodes)])
+
+    def per_node(name, default):
+        return np.array([_floats(n.get(name), f"{where} MasterNode {i} {name}", len(default))
+                         if n.get(name) is not None else default for i, n in enumerate(nodes)])
+
+    interp = el.find("Interpolation")
+    if interp is None:
+        raise FormatError(f"{where}: no <Interpolation>")
+    itype = interp.get("type")
+    if itype not in INTERPOLATION_IN:
+        raise FormatError(f"{where}: unsupported interpolation type {itype!r}")
+    ysec = el.find("YarnSection")
+    if ysec is None:
+        raise FormatError(f"{where}: no <YarnSection>")
+    fibres = None
+    if el.get("FibresPerYarn") is not None and el.get("FibreDiameterValue") is not None:
+        count, diameter = _attr(el, "FibresPerYarn", where), _attr(el, "FibreDiameterValue", where)
+        if count > 0 and diameter > 0:
+            fibres = (count, diameter)
+    try:
+        return Yarn(
+            nodes=pos,
+            section=_yarn_section(ysec, len(pos), where),
+            interpolation=INTERPOLATION_IN[itype],
+            periodic=bool(_attr(interp, "Periodic", where, 1, int)),
+            repeats=[_floats(r.get("value"), f"{where} Repeat", 3) for r in el.findall("Repeat")],
+            tangents=per_node("Tangent", np.zeros(3)),
+            ups=per_node("Up", np.zeros(3)),
+            angles=per_node("Angle", np.zeros(1))[:, 0],
+            force_in_plane_tangent=bool(_attr(interp, "ForceInPlaneTangent", where, 0, int)),
+            force_node_tangent_in_plane=bool(_attr(interp, "ForceMasterNodeTangent", where, 0, int)),
+            fibres=fibres,
+            name=f"yarn {el.get('index', '?')}",
+        )
+    except FormatError:
+        raise
+    except TextileError as e:
+        raise FormatError(f"{where}: {e}") from None
+
+
+def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
+    dom = textile_el.find("Domain")
+    if dom is None:
+        reps = yarns[0].repeats
+        if len(reps) != 2 or abs(reps[0, 1]) + abs(reps[1, 0]) > 0:
+            raise FormatError(f"{where}: no <Domain> and no axis-aligned repeats to define the unit cell")
+        return Cell(float(reps[0, 0]), float(reps[1, 1]))
+    if dom.get("type") != "CDomainPlanes":
+        raise FormatError(f"{where}: unsupported domain type {dom.get('type')!r} (only CDomainPlanes)")
+    lo, hi = [None] * 3, [None] * 3
+    for plane in dom.findall("Plane"):
+        n = _floats(plane.get("Normal"), f"{where} Domain Plane Normal", 3)
+        d = _attr(plane, "d", f"{where} Domain Plane")
+        axis = int(np.argmax(np.abs(n)))
+        if np.count_nonzero(np.abs(n) > 1e-12) != 1:
+            raise FormatError(f"{where}: Domain plane with normal {n.tolist()} is not axis-aligned")
+        if n[axis] > 0:
+            lo[axis] = d / n[axis]
+        else:
+            hi[axis] = d / n[axis]
+    if any(v is None for v in lo[:2] + hi[:2]):
+        raise FormatError(f"{where}: Domain planes do not bound x and y on both sides")
+    z_range = (lo[2], hi[2]) if lo[2] is not None and hi[2] is not None else None
+    try:
+        return Cell(hi[0] - lo[0], hi[1] - lo[1], lo[0], lo[1], z_range)
+    except TextileError as e:
+        raise FormatError(f"{where}: Domain: {e}") from None
+
+
+def read_tg3(path, textile: str | None = None) -> Textile:
+    """Read a TexGen .tg3 file as a Textile (the named textile, or the only/first one)."""
+    path = Path(path)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise FormatError(f"{path}: not valid XML ({e})") from None
+    except OSError as e:
+        raise FormatError(f"{path}: cannot read ({e.strerror})") from None
+    if root.tag != "TexGenModel":
+        raise FormatError(f"{path}: root element is <{root.tag}>, expected <TexGenModel>")
+    textiles = root.findall("Textile")
+    if not textiles:
+        raise FormatError(f"{path}: no <Textile>")
+    if textile is not None:
+        textiles = [t for t in textiles if t.get("name") == textile]
+        if not textiles:
+            raise FormatError(f"{path}: no textile named {textile!r}")
+    el = textiles[0]
+    where = f"{path.name}: Textile {el.get('name', '?')!r} ({el.get('type', '?')})"
+    for child in el:
+        if child.tag not in {"Domain", "Yarn"} | IGNORED_TEXTILE_CHILDREN:
+            raise FormatError(f"{where}: unsupported element <{child.tag}>")
+    yarn_els = el.findall("Yarn")
+    if not yarn_els:
+        raise FormatError(f"{where}: the file holds no yarns (saved with OUTPUT_MINIMAL?); "
+                          "save it from TexGen with OUTPUT_STANDARD or OUTPUT_FULL")
+    yarns = [_yarn(y, where) for y in sorted(yarn_els, key=lambda y: int(y.get("index", 0) or 0))]
+    return Textile(cell=_domain(el, yarns, where), yarns=yarns, name=el.get("name") or path.stem)
+
+
+# --- writing ----------------------------------------------------------------------------------
+
+def _num(v) -> str:
+    return ", ".join(f"{float(x):.17g}" for x in np.atleast_1d(v))
+
+
+def _section_element(parent, sec: Section, n_points: int):
+    el = ET.SubElement(parent, "Section")
+    if isinstance(sec, Ellipse):
+        el.attrib.update(type="CSectionEllipse", Width=_num(sec.width), Height=_num(sec.height))
+    elif isinstance(sec, PowerEllipse):
+        el.attrib.update(type="CSectionPowerEllipse", Width=_num(sec.width), Height=_num(sec.height),
+                         Power=_num(sec.power), XOffset=_num(sec.x_offset))
+    elif isinstance(sec, Lenticular):
+        el.attrib.update(type="CSectionLenticular", Width=_num(sec.width), Height=_num(sec.height),
+                         Distortion=_num(sec.distortion))
+    elif isinstance(sec, Polygon):
+        el.attrib.update(type="CSectionPolygon", RetainPoints="0")
+        for p in sec.vertices:
+            ET.SubElement(el, "PolygonPoint", value=_num(p))
+    else:
+        raise TextileError(f"cannot write section of type {type(sec).__name__}")
+    return el
+
+
+def _section_points_for(yarn: Yarn) -> int:
+    # TexGen resamples polygons to NumSectionPoints; ~4x the vertex count keeps corners (README).
+    polys = [s for s in yarn.section.sections() if isinstance(s, Polygon)]
+    return max([40] + [4 * len(p.vertices) for p in polys])
+
+
+def tg3_tree(textile: Textile) -> ET.ElementTree:
+    """The XML tree of a plain CTextile holding the textile's yarns as they are."""
+    root = ET.Element("TexGenModel", version="3.14.0")
+    tex = ET.SubElement(root, "Textile", name=textile.name, type="CTextile", GeometryScale="mm")
+    c = textile.cell
+    z0, z1 = c.z_range if c.z_range is not None else _z_extent(textile)
+    dom = ET.SubElement(tex, "Domain", type="CDomainPlanes")
+    for normal, d in (((1, 0, 0), c.x0), ((-1, 0, 0), -(c.x0 + c.lx)), ((0, 1, 0), c.y0),
+                      ((0, -1, 0), -(c.y0 + c.ly)), ((0, 0, 1), z0), ((0, 0, -1), -z1)):
+        ET.SubElement(dom, "Plane", Normal=_num(normal), d=_num(d))
+    for i, y in enumerate(textile.yarns):
+        n_sec = _section_points_for(y)
+        yel = ET.SubElement(tex, "Yarn", index=str(i), NumSlaveNodes=str(max(40, 4 * len(y.nodes))),
+                            NumSectionPoints=str(n_sec), NeedsBuilding="7")
+        if y.fibres is not None:
+            yel.attrib.update(FibresPerYarn=_num(y.fibres[0]), FibreDiameterValue=_num(y.fibres[1]),
+                              FibreDiameterUnits="mm")
+        ET.SubElement(yel, "Interpolation", type=INTERPOLATION_OUT[y.interpolation],
+                      Periodic=str(int(y.periodic)), ForceInPlaneTangent=str(int(y.force_in_plane_tangent)),
+                      ForceMasterNodeTangent=str(int(y.force_node_tangent_in_plane)))
+        sec = y.section
+        if isinstance(sec, ConstantSection):
+            ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionConstant", ConstMesh="1")
+            _section_element(ys, sec.section, n_sec)
+        elif isinstance(sec, NodeSections):
+            ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpNode",
+                               Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))
+            for k, s in enumerate(sec.at_nodes):
+                _section_element(ET.SubElement(ys, "NodeSection", nodeindex=str(k)), s, n_sec)
+        else:
+            ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpPosition",
+                               Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))
+            for t, s in zip(sec.positions, sec.at_positions):
+                _section_element(ET.SubElement(ys, "PositionSection", t=_num(t)), s, n_sec)
+        for r in y.repeats:
+            ET.SubElement(yel, "Repeat", value=_num(r))
+        for k, p in enumerate(y.nodes):
+            node = ET.SubElement(yel, "MasterNode", index=str(k), Position=_num(p))
+            if y.tangents is not None:
+                node.set("Tangent", _num(y.tangents[k]))
+            node.set("Up", _num(y.ups[k] if y.ups is not None else (0, 0, 1)))
+            if y.angles is not None:
+                node.set("Angle", _num(y.angles[k]))
+    ET.indent(root, space="    ")
+    return ET.ElementTree(root)
+
+
+def _z_extent(textile: Textile) -> tuple[float, float]:
+    z = np.concatenate([textile.triangles(i)[..., 2].ravel() for i in range(len(textile.yarns))])
+    pad = 0.05 * (z.max() - z.min())
+    return float(z.min() - pad), float(z.max() + pad)
+
+
+def write_tg3(textile: Textile, path) -> Path:
+    """Write the textile as a generic TexGen .tg3, atomically (a temporary file renamed)."""
+    path = Path(path)
+    tree = tg3_tree(textile)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            tree.write(f, encoding="utf-8", xml_declaration=True)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path

@@ -1,0 +1,260 @@
+"""A yarn: a C1 centreline through master nodes, repeated by the cell vectors, carrying sections.
+
+The centreline is parametrised by s in [0, N-1] over N master nodes (segment i is s in [i, i+1],
+local t = s - i), as TexGen does:
+- "bezier": cubic Bezier per segment with control points P_i + T_i L/3 and P_{i+1} - T_{i+1} L/3,
+  L = |P_{i+1} - P_i|, T the unit node tangent: the node's own tangent when it has one, else the
+  normalised (next - previous) node (periodic neighbours taken across the repeat);
+- "cubic": periodic (or natural) cubic spline through the nodes, per coordinate;
+- "linear": straight segments.
+A periodic yarn's last node is its first plus the period vector.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.sections import Section, blend
+
+INTERPOLATIONS = ("bezier", "cubic", "linear")
+
+
+@dataclass(frozen=True)
+class ConstantSection:
+    """The same section all along the yarn."""
+
+    section: Section
+
+    def sections(self):
+        return (self.section,)
+
+
+@dataclass(frozen=True)
+class NodeSections:
+    """One section per master node, blended point by point between nodes (TexGen InterpNode)."""
+
+    at_nodes: tuple
+    ramped: bool = False
+    polar: bool = False
+
+    def sections(self):
+        return tuple(self.at_nodes)
+
+
+@dataclass(frozen=True)
+class PositionSections:
+    """Sections at fractions of the yarn's length in [0, 1), blended between (TexGen InterpPosition)."""
+
+    positions: tuple
+    at_positions: tuple
+    ramped: bool = False
+    polar: bool = False
+
+    def __post_init__(self):
+        if len(self.positions) != len(self.at_positions) or not self.positions:
+            raise TextileError("position sections need as many positions as sections, at least one")
+        p = np.asarray(self.positions, float)
+        if np.any(~np.isfinite(p)) or np.any(np.diff(p) < 0):
+            raise TextileError(f"section positions must be finite and increasing, got {self.positions}")
+
+    def sections(self):
+        return tuple(self.at_positions)
+
+
+@dataclass(eq=False)
+class Yarn:
+    """A yarn of the textile (lengths in mm).
+
+    nodes: (N, 3) master node positions. section: ConstantSection, NodeSections or PositionSections.
+    repeats: (k, 3) vectors by which the yarn repeats (usually the cell's). tangents, ups: optional
+    (N, 3) per-node tangent (zero rows: computed) and up vectors (zero rows: +z). angles: per-node
+    section rotation about the tangent [rad]. fibres: optional (count, diameter [mm]) for volume
+    fraction.
+    """
+
+    nodes: np.ndarray
+    section: object
+    interpolation: str = "bezier"
+    periodic: bool = True
+    repeats: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tangents: np.ndarray | None = None
+    ups: np.ndarray | None = None
+    angles: np.ndarray | None = None
+    force_in_plane_tangent: bool = False
+    force_node_tangent_in_plane: bool = False
+    fibres: tuple | None = None
+    name: str = ""
+
+    def __post_init__(self):
+        label = self.name or "yarn"
+        self.nodes = np.array(self.nodes, dtype=float)
+        if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
+            raise TextileError(f"{label}: master nodes must be (N, 3) positions, got shape {self.nodes.shape}")
+        if len(self.nodes) < 2:
+            raise TextileError(f"{label}: needs at least 2 master nodes, got {len(self.nodes)}")
+        if not np.all(np.isfinite(self.nodes)):
+            raise TextileError(f"{label}: a master node position is not finite")
+        seg = np.linalg.norm(np.diff(self.nodes, axis=0), axis=1)
+        if np.any(seg <= 1e-12):
+            i = int(np.argmin(seg))
+            raise TextileError(f"{label}: master nodes {i} and {i + 1} coincide")
+        if self.interpolation not in INTERPOLATIONS:
+            raise TextileError(f"{label}: interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
+        if not isinstance(self.section, (ConstantSection, NodeSections, PositionSections)):
+            raise TextileError(f"{label}: section must be ConstantSection, NodeSections or PositionSections")
+        if isinstance(self.section, NodeSections) and len(self.section.at_nodes) != len(self.nodes):
+            raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} master nodes")
+        self.repeats = np.array(self.repeats, dtype=float).reshape(-1, 3)
+        if not np.all(np.isfinite(self.repeats)):
+            raise TextileError(f"{label}: a repeat vector is not finite")
+        n = len(self.nodes)
+        for attr, shape in (("tangents", (n, 3)), ("ups", (n, 3)), ("angles", (n,))):
+            value = getattr(self, attr)
+            if value is not None:
+                value = np.array(value, dtype=float)
+                if value.shape != shape or not np.all(np.isfinite(value)):
+                    raise TextileError(f"{label}: {attr} must be finite with shape {shape}, got {value.shape}")
+                setattr(self, attr, value)
+        if self.fibres is not None:
+            count, diameter = self.fibres
+            self.fibres = (check_positive(f"{label}: fibre count", count),
+                           check_positive(f"{label}: fibre diameter", diameter))
+        self._spline = None
+        self._node_tangents = None
+
+    # --- centreline -------------------------------------------------------------------------
+    @property
+    def period(self) -> np.ndarray:
+        """The vector from the first to the last master node (the yarn's own repeat if periodic)."""
+        return self.nodes[-1] - self.nodes[0]
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.nodes) - 1
+
+    def node_tangents(self) -> np.ndarray:
+        """Unit tangents at master nodes used by the Bezier interpolation (TexGen's rule)."""
+        if self._node_tangents is None:
+            p = self.nodes
+            prev = np.vstack((p[-2] - self.period if self.periodic else p[0], p[:-1]))
+            nxt = np.vstack((p[1:], p[1] + self.period if self.periodic else p[-1]))
+            t = nxt - prev
+            t /= np.linalg.norm(t, axis=1, keepdims=True)
+            if self.tangents is not None:
+                own = np.linalg.norm(self.tangents, axis=1) > 0
+                t[own] = self.tangents[own]
+            if self.force_node_tangent_in_plane:
+                t[:, 2] = 0.0
+            self._node_tangents = t
+        return self._node_tangents
+
+    def _cubic(self):
+        if self._spline is None:
+            s = np.arange(len(self.nodes), dtype=float)
+            if self.periodic:
+                drift = np.outer(s / s[-1], self.period)  # periodic part plus a linear drift
+                self._spline = (CubicSpline(s, self.nodes - drift, bc_type="periodic"), self.period / s[-1])
+            else:
+                self._spline = (CubicSpline(s, self.nodes, bc_type="natural"), np.zeros(3))
+        return self._spline
+
+    def _segment(self, s):
+        s = np.clip(np.asarray(s, float), 0, self.n_segments)
+        i = np.minimum(np.floor(s).astype(int), self.n_segments - 1)
+        return i, s - i
+
+    def centreline(self, s) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (M, 3) and unit tangents (M, 3) at parameters s (M,) in [0, N-1]."""
+        i, t = self._segment(s)
+        p0, p1 = self.nodes[i], self.nodes[i + 1]
+        tt = t[:, None]
+        if self.interpolation == "linear":
+            pos, der = p0 + tt * (p1 - p0), p1 - p0
+        elif self.interpolation == "bezier":
+            T = self.node_tangents()
+            third = np.linalg.norm(p1 - p0, axis=1, keepdims=True) / 3
+            c1, c2 = p0 + T[i] * third, p1 - T[i + 1] * third
+            m = 1 - tt
+            pos = m**3 * p0 + 3 * m**2 * tt * c1 + 3 * m * tt**2 * c2 + tt**3 * p1
+            der = 3 * m**2 * (c1 - p0) + 6 * m * tt * (c2 - c1) + 3 * tt**2 * (p1 - c2)
+        else:
+            spline, drift = self._cubic()
+            ss = np.asarray(i + t, float)
+            pos = spline(ss) + np.outer(ss, drift)
+            der = spline(ss, 1) + drift
+        if self.force_in_plane_tangent:
+            der = der * np.array([1.0, 1.0, 0.0])
+        norm = np.linalg.norm(der, axis=1, keepdims=True)
+        return pos, der / np.where(norm > 0, norm, 1.0)
+
+    def frames(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, tangents, ups and sides (each (M, 3)) at parameters s: side = tangent x up."""
+        pos, tan = self.centreline(s)
+        i, t = self._segment(s)
+        ups = np.tile([0.0, 0.0, 1.0], (len(self.nodes), 1)) if self.ups is None else self.ups.copy()
+        ups[np.linalg.norm(ups, axis=1) == 0] = (0.0, 0.0, 1.0)
+        up = ups[i] + (ups[i + 1] - ups[i]) * t[:, None]
+        up -= np.sum(up * tan, axis=1, keepdims=True) * tan
+        norm = np.linalg.norm(up, axis=1, keepdims=True)
+        if np.any(norm < 1e-9):
+            raise TextileError(f"{self.name or 'yarn'}: its up vector is parallel to its tangent")
+        up /= norm
+        side = np.cross(tan, up)
+        if self.angles is not None and np.any(self.angles):
+            a = (self.angles[i] + (self.angles[i + 1] - self.angles[i]) * t)[:, None]
+            up, side = up * np.cos(a) - side * np.sin(a), side * np.cos(a) + up * np.sin(a)
+        return pos, tan, up, side
+
+    def length_table(self, per_segment: int = 64) -> tuple[np.ndarray, np.ndarray]:
+        """Dense parameters s and cumulative centreline length at them (for arc-length stations)."""
+        s = np.linspace(0, self.n_segments, self.n_segments * per_segment + 1)
+        pos, _ = self.centreline(s)
+        return s, np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(pos, axis=0), axis=1))))
+
+    def length(self) -> float:
+        """Centreline length over the master nodes [mm]."""
+        return float(self.length_table()[1][-1])
+
+    def stations(self, spacing: float, minimum_per_segment: int = 4) -> np.ndarray:
+        """Parameters s of stations equispaced in arc length (at most `spacing` mm apart), ends included."""
+        s, cum = self.length_table()
+        n = max(int(np.ceil(cum[-1] / spacing)), minimum_per_segment * self.n_segments)
+        return np.interp(np.linspace(0, cum[-1], n + 1), cum, s)
+
+    # --- sections ---------------------------------------------------------------------------
+    def section_points(self, s, n_points: int) -> np.ndarray:
+        """Section polygons (M, n_points, 2) in (side, up) coordinates at parameters s."""
+        sec = self.section
+        s = np.asarray(s, float)
+        if isinstance(sec, ConstantSection):
+            return np.broadcast_to(sec.section.points(n_points), (len(s), n_points, 2)).copy()
+        pts = np.array([x.points(n_points) for x in sec.sections()])
+        if isinstance(sec, NodeSections):
+            i, t = self._segment(s)
+            return blend(pts[i], pts[i + 1], t, sec.ramped, sec.polar)
+        # Positions are fractions of the yarn's length measured along straight segments (TexGen).
+        i, t = self._segment(s)
+        seg = np.linalg.norm(np.diff(self.nodes, axis=0), axis=1)
+        cum = np.concatenate(([0.0], np.cumsum(seg)))
+        frac = (cum[i] + t * seg[i]) / cum[-1]
+        pos = np.asarray(sec.positions, float)
+        ext_pos = np.concatenate(([pos[-1] - 1], pos, [pos[0] + 1]))
+        ext_pts = np.concatenate((pts[-1:], pts, pts[:1]))
+        j = np.clip(np.searchsorted(ext_pos, frac, side="right") - 1, 0, len(ext_pos) - 2)
+        span = ext_pos[j + 1] - ext_pos[j]
+        u = np.where(span > 0, (frac - ext_pos[j]) / np.where(span > 0, span, 1), 0.0)
+        return blend(ext_pts[j], ext_pts[j + 1], u, sec.ramped, sec.polar)
+
+    def tube(self, spacing: float, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+        """The yarn's surface over its master nodes as a structured grid.
+
+        Returns (vertices (M, n_points, 3), stations s (M,)): vertex [m, k] is section point k at
+        station m. For a periodic yarn the last station repeats the first, shifted by the period.
+        """
+        s = self.stations(spacing)
+        pos, _, up, side = self.frames(s)
+        sec = self.section_points(s, n_points)
+        verts = pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+        return verts, s
