@@ -1,12 +1,21 @@
-"""The `textile-fenicsx` command line."""
+"""The `textile-fenicsx` command line.
+
+Exit codes: 0 success; 1 a computation failed; 2 bad input or usage (the message names the culprit).
+"""
 
 import argparse
+import json
+import shutil
 import sys
+import tempfile
+import time
+from pathlib import Path
 
 from textile_fenicsx import __version__
+from textile_fenicsx.errors import TextileError
 
 
-def _versions(_args: argparse.Namespace) -> int:
+def _versions(_args) -> int:
     import dolfinx
     import petsc4py
     import ufl
@@ -18,19 +27,133 @@ def _versions(_args: argparse.Namespace) -> int:
     return 0
 
 
+def _report(args) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.config import load_model
+    from textile_fenicsx.metrics import measure
+
+    textile = load_model(args.model)
+    metrics = measure(textile, args.grid, comm=MPI.COMM_WORLD)
+    if MPI.COMM_WORLD.rank == 0:
+        print(json.dumps(metrics, indent=1))
+    return 0
+
+
+def _parse_value(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _build(args) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.config import save_model
+    from textile_fenicsx.export import write_surfaces
+    from textile_fenicsx.plotting import plot_textile
+    from textile_fenicsx.tg3 import write_tg3
+    from textile_fenicsx.weaves import build
+
+    options = {k: v for k, v in vars(args).items()
+               if k in ("spacing", "width", "height", "thickness", "power", "over", "under", "harness", "move")
+               and v is not None}
+    if args.allow_overlap:
+        options["allow_overlap"] = True
+    for item in args.set or []:
+        if "=" not in item:
+            raise TextileError(f"--set expects KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        options[key.strip()] = _parse_value(value.strip())
+    try:
+        textile = build(args.name, **options)
+    except TypeError as e:
+        raise TextileError(f"build {args.name}: {e}") from None
+    if MPI.COMM_WORLD.rank != 0:
+        return 0
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # Everything is written to a temporary folder beside DIR and moved in at the end.
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        start = time.perf_counter()
+        stem = args.name
+        steps = [("model", lambda: save_model(textile, tmp / f"{stem}.json")),
+                 ("TexGen", lambda: write_tg3(textile, tmp / f"{stem}.tg3")),
+                 ("surfaces", lambda: (write_surfaces(textile, tmp / f"{stem}.vtu"),
+                                       write_surfaces(textile, tmp / f"{stem}.stl")))]
+        if not args.no_picture:
+            steps.append(("picture", lambda: plot_textile(textile, tmp / f"{stem}.png")))
+        for label, step in steps:
+            print(f"build: writing {label} ({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
+            step()
+        out.mkdir(exist_ok=True)
+        for f in sorted(tmp.iterdir()):
+            f.replace(out / f.name)
+            print(out / f.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="textile-fenicsx",
         description="Predict the real geometry of a woven textile unit cell: the yarns' mid-surfaces "
         "are plates that minimise bending + tension + contact energy (Lin et al. 2012), solved "
-        "with FEniCSx.",
-        epilog="Run it through the project's environment from a checkout: "
-        "bin/fenicsx-env textile-fenicsx ...",
+        "with FEniCSx. Lengths in mm.",
+        epilog="From a checkout, run it through the project's environment: "
+        "bin/fenicsx-env textile-fenicsx COMMAND ... Exit codes: 0 success, 1 computation failed, "
+        "2 bad input or usage.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
-    versions = commands.add_parser("versions", help="print the versions of the numerical stack")
-    versions.set_defaults(run=_versions)
+
+    p = commands.add_parser("versions", help="print the versions of the numerical stack")
+    p.set_defaults(run=_versions)
+
+    p = commands.add_parser(
+        "report", help="print the metrics of a model as JSON",
+        description="Measure a model (.tg3 from TexGen, or our .toml/.json) on an N x N grid of vertical "
+        "rays: yarn volumes, interpenetration volume and depth (total and per yarn pair), thickness, "
+        "crimp per yarn, fibre volume fraction (null without fibre data). mm and mm^3.")
+    p.add_argument("model", help="model file: .tg3, .toml or .json")
+    p.add_argument("--grid", type=int, default=200, metavar="N",
+                   help="rays per cell side (default 200, as the reference measurements)")
+    p.set_defaults(run=_report)
+
+    p = commands.add_parser(
+        "build", help="build a named weave and write its model, surfaces and picture",
+        description="Build an idealised unit cell and write DIR/NAME.json (our model), DIR/NAME.tg3 "
+        "(TexGen), DIR/NAME.vtu and DIR/NAME.stl (yarn surfaces clipped to the cell, yarn index as cell "
+        "data in the VTU) and DIR/NAME.png. Files appear only when all are written.")
+    p.add_argument("name", choices=["plain", "twill", "satin", "crowfoot_satin", "orthogonal"],
+                   help="weave: 2D plain, twill, satin, crowfoot_satin (4-harness), or 3D orthogonal")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    for name, kind, text in (("spacing", float, "yarn spacing [mm] (2D weaves)"),
+                             ("width", float, "yarn width [mm] (2D weaves)"),
+                             ("height", float, "yarn height [mm] (2D weaves)"),
+                             ("thickness", float, "fabric thickness [mm] (2D weaves; default sum of heights)"),
+                             ("power", float, "section power: power-ellipse sections (2D weaves)"),
+                             ("over", int, "twill: wefts each warp floats over"),
+                             ("under", int, "twill: wefts each warp passes under"),
+                             ("harness", int, "satin: harness number (>= 5)"),
+                             ("move", int, "satin: move number, coprime with the harness")):
+        p.add_argument(f"--{name}", type=kind, help=text)
+    p.add_argument("--allow-overlap", action="store_true", help="accept widths larger than spacings")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="any other builder option, e.g. --set weft_width=2.2 (orthogonal: warp_*, weft_*, "
+                   "binder_* spacing/width/height/power, warp_layers, n_warp_stacks, n_weft_columns)")
+    p.add_argument("--no-picture", action="store_true", help="skip the PNG")
+    p.set_defaults(run=_build)
     return parser
 
 
@@ -40,7 +163,11 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "run"):
         parser.print_help()
         return 2
-    return args.run(args)
+    try:
+        return args.run(args)
+    except TextileError as e:
+        print(f"textile-fenicsx: error: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -49,14 +49,19 @@ def crimp(textile: Textile) -> list[float]:
     return out
 
 
-def measure(textile: Textile, n: int = 200) -> dict:
-    """The metrics of the textile as a JSON-ready dict (mm, mm^3), sampled on an n x n grid."""
+def measure(textile: Textile, n: int = 200, comm=None) -> dict:
+    """The metrics of the textile as a JSON-ready dict (mm, mm^3), sampled on an n x n grid.
+
+    With an MPI communicator the grid points are split over its ranks and the sums reduced, so
+    every rank returns the same answer as a serial call.
+    """
     xy, dA = textile.cell.grid(n)
+    if comm is not None and comm.size > 1:
+        xy = np.array_split(xy, comm.size)[comm.rank]
     col = textile.columns(xy)
     bot, top = _clipped(textile, col)
-    length = top - bot
     n_yarns = len(textile.yarns)
-    per_yarn = np.bincount(col.yarn, weights=length, minlength=n_yarns) * dA
+    per_yarn = np.bincount(col.yarn, weights=top - bot, minlength=n_yarns) * dA
     depth = coverage_depth(len(xy), col.point, bot, top)
 
     pairs = {}
@@ -72,20 +77,38 @@ def measure(textile: Textile, n: int = 200) -> dict:
             v, d = pairs.get(key, (0.0, 0.0))
             pairs[key] = (v + o * dA, max(d, o))
 
-    z_lo, z_hi = (bot.min(), top.max()) if len(bot) else (0.0, 0.0)
-    result = {
+    local = {"volume": float(depth.sum() * dA), "max_depth": float(depth.max()) if len(depth) else 0.0,
+             "z_lo": float(bot.min()) if len(bot) else np.inf, "z_hi": float(top.max()) if len(top) else -np.inf,
+             "odd": col.odd}
+    if comm is not None and comm.size > 1:
+        from mpi4py import MPI
+
+        per_yarn = comm.allreduce(per_yarn, op=MPI.SUM)
+        merged = {}
+        for part in comm.allgather(pairs):
+            for k, (v, d) in part.items():
+                v0, d0 = merged.get(k, (0.0, 0.0))
+                merged[k] = (v0 + v, max(d0, d))
+        pairs = merged
+        local = {"volume": comm.allreduce(local["volume"], op=MPI.SUM),
+                 "max_depth": comm.allreduce(local["max_depth"], op=MPI.MAX),
+                 "z_lo": comm.allreduce(local["z_lo"], op=MPI.MIN),
+                 "z_hi": comm.allreduce(local["z_hi"], op=MPI.MAX),
+                 "odd": comm.allreduce(local["odd"], op=MPI.SUM)}
+    thickness = local["z_hi"] - local["z_lo"] if np.isfinite(local["z_hi"]) else 0.0
+    return {
         "yarn_volume": {"total": float(per_yarn.sum()), "per_yarn": per_yarn.tolist()},
         "interpenetration": {
-            "volume": float(depth.sum() * dA),
-            "max_depth": float(depth.max()) if len(depth) else 0.0,
-            "pairs": [{"yarns": list(k), "volume": v, "max_depth": d} for k, (v, d) in sorted(pairs.items())],
+            "volume": local["volume"],
+            "max_depth": local["max_depth"],
+            "pairs": [{"yarns": list(k), "volume": float(v), "max_depth": float(d)}
+                      for k, (v, d) in sorted(pairs.items())],
         },
-        "thickness": float(z_hi - z_lo),
+        "thickness": float(thickness),
         "crimp": crimp(textile),
-        "vf": fibre_volume_fraction(textile, per_yarn, float(z_hi - z_lo)),
-        "sampling": {"grid": [n, n], "cell_area_per_sample": dA, "odd_parity_columns": col.odd},
+        "vf": fibre_volume_fraction(textile, per_yarn, float(thickness)),
+        "sampling": {"grid": [n, n], "cell_area_per_sample": dA, "odd_parity_columns": local["odd"]},
     }
-    return result
 
 
 def fibre_volume_fraction(textile: Textile, yarn_volumes: np.ndarray, thickness: float) -> float | None:

@@ -93,3 +93,25 @@ def plot_height_field(u: dolfinx.fem.Function, path: Path, title: str, warp: flo
         plotter.view_isometric()
         plotter.screenshot(str(path))
         plotter.close()
+
+
+def plot_textile(textile, path: Path, title: str | None = None) -> None:
+    """Write a PNG 3D view of the textile's yarn surfaces clipped to the cell, coloured by yarn."""
+    import pyvista
+
+    from textile_fenicsx.export import surfaces
+
+    points, tris, index = surfaces(textile)
+    mesh = pyvista.PolyData(points, np.hstack([np.full((len(tris), 1), 3), tris]).ravel())
+    mesh.cell_data["yarn"] = index
+    x0, x1, y0, y1 = textile.cell.bounds
+    with offscreen():
+        plotter = pyvista.Plotter(off_screen=True, window_size=(1400, 1000))
+        plotter.add_mesh(mesh, scalars="yarn", cmap="tab20", show_scalar_bar=False, smooth_shading=True)
+        plotter.add_mesh(pyvista.Box((x0, x1, y0, y1, points[:, 2].min(), points[:, 2].max())),
+                         style="wireframe", color="grey")
+        plotter.add_text(title or textile.name, font_size=12)
+        plotter.set_scale(zscale=2.0)
+        plotter.view_isometric()
+        plotter.screenshot(str(path))
+        plotter.close()

@@ -226,9 +226,10 @@ class Textile:
             poly = pyvista.PolyData(pts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
             if clip:
                 x0, x1, y0, y1 = self.cell.bounds
-                planes = [("-x", (x0, 0, 0)), ("x", (x1, 0, 0)), ("-y", (0, y0, 0)), ("y", (0, y1, 0))]
+                # clip_closed_surface keeps the side the normal points to
+                planes = [("x", (x0, 0, 0)), ("-x", (x1, 0, 0)), ("y", (0, y0, 0)), ("-y", (0, y1, 0))]
                 if self.cell.z_range is not None:
-                    planes += [("-z", (0, 0, self.cell.z_range[0])), ("z", (0, 0, self.cell.z_range[1]))]
+                    planes += [("z", (0, 0, self.cell.z_range[0])), ("-z", (0, 0, self.cell.z_range[1]))]
                 for normal, origin in planes:
                     if poly.n_points == 0:
                         break

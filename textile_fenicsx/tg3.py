@@ -10,14 +10,13 @@ shared/reference/README.md): mandatory yarn attributes, CDomainPlanes, and each 
 interpolation and sections (per-node polygons for corrected yarns).
 """
 
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from textile_fenicsx.errors import FormatError, TextileError
+from textile_fenicsx.files import atomic_path
 from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
@@ -129,7 +128,9 @@ def _yarn(el, textile_where: str) -> Yarn:
         raise FormatError(f"{where}: needs at least 2 MasterNode elements, has {len(nodes)}")
     pos = np.array([_floats(n.get("Position"), f"{where} MasterNode {i} Position", 3) for i, n in enumerate(nodes)])
 
-    def per_node(name, default):
+    def per_node(name, default):  # None when no node has the attribute (TexGen's default applies)
+        if all(n.get(name) is None for n in nodes):
+            return None
         return np.array([_floats(n.get(name), f"{where} MasterNode {i} {name}", len(default))
                          if n.get(name) is not None else default for i, n in enumerate(nodes)])
 
@@ -142,6 +143,7 @@ def _yarn(el, textile_where: str) -> Yarn:
     ysec = el.find("YarnSection")
     if ysec is None:
         raise FormatError(f"{where}: no <YarnSection>")
+    angles = per_node("Angle", np.zeros(1))
     fibres = None
     if el.get("FibresPerYarn") is not None and el.get("FibreDiameterValue") is not None:
         count, diameter = _attr(el, "FibresPerYarn", where), _attr(el, "FibreDiameterValue", where)
@@ -156,7 +158,7 @@ def _yarn(el, textile_where: str) -> Yarn:
             repeats=[_floats(r.get("value"), f"{where} Repeat", 3) for r in el.findall("Repeat")],
             tangents=per_node("Tangent", np.zeros(3)),
             ups=per_node("Up", np.zeros(3)),
-            angles=per_node("Angle", np.zeros(1))[:, 0],
+            angles=None if angles is None else angles[:, 0],
             force_in_plane_tangent=bool(_attr(interp, "ForceInPlaneTangent", where, 0, int)),
             force_node_tangent_in_plane=bool(_attr(interp, "ForceMasterNodeTangent", where, 0, int)),
             fibres=fibres,
@@ -299,7 +301,8 @@ def tg3_tree(textile: Textile) -> ET.ElementTree:
             node = ET.SubElement(yel, "MasterNode", index=str(k), Position=_num(p))
             if y.tangents is not None:
                 node.set("Tangent", _num(y.tangents[k]))
-            node.set("Up", _num(y.ups[k] if y.ups is not None else (0, 0, 1)))
+            if y.ups is not None:
+                node.set("Up", _num(y.ups[k]))
             if y.angles is not None:
                 node.set("Angle", _num(y.angles[k]))
     ET.indent(root, space="    ")
@@ -313,15 +316,8 @@ def _z_extent(textile: Textile) -> tuple[float, float]:
 
 
 def write_tg3(textile: Textile, path) -> Path:
-    """Write the textile as a generic TexGen .tg3, atomically (a temporary file renamed)."""
-    path = Path(path)
+    """Write the textile as a generic TexGen .tg3, atomically."""
     tree = tg3_tree(textile)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            tree.write(f, encoding="utf-8", xml_declaration=True)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    with atomic_path(path) as tmp:
+        tree.write(tmp, encoding="utf-8", xml_declaration=True)
+    return Path(path)

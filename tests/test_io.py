@@ -1,0 +1,285 @@
+"""Model files in and out (.tg3, TOML/JSON), surface exports, the CLI, and bad input."""
+
+import json
+import subprocess
+import xml.etree.ElementTree as ET
+
+import meshio
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from textile_fenicsx.config import load_model, save_model
+from textile_fenicsx.errors import FormatError, TextileError
+from textile_fenicsx.export import write_surfaces
+from textile_fenicsx.metrics import measure
+from textile_fenicsx.sections import Ellipse, Polygon
+from textile_fenicsx.textile import Cell, Textile
+from textile_fenicsx.tg3 import read_tg3, write_tg3
+from textile_fenicsx.weaves import build, weave2d
+from textile_fenicsx.yarn import ConstantSection, NodeSections, Yarn
+
+SUPPRESS = [HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+
+
+def same_textile(a: Textile, b: Textile):
+    assert a.cell == b.cell
+    assert len(a.yarns) == len(b.yarns)
+    for ya, yb in zip(a.yarns, b.yarns):
+        assert np.array_equal(ya.nodes, yb.nodes)
+        assert ya.interpolation == yb.interpolation and ya.periodic == yb.periodic
+        assert np.array_equal(ya.repeats, yb.repeats)
+        assert ya.section == yb.section
+        for attr in ("tangents", "ups"):
+            va, vb = getattr(ya, attr), getattr(yb, attr)
+            assert (va is None and vb is None) or np.array_equal(
+                va if va is not None else np.zeros_like(vb), vb if vb is not None else np.zeros_like(va))
+
+
+def corrected_style_textile() -> Textile:
+    """Yarns as the correction stage makes them: many nodes, cubic, one polygon section per node."""
+    L = 6.0
+    x = np.linspace(0, L, 13)
+    nodes = np.column_stack((x, np.full_like(x, 1.5), 0.2 + 0.1 * np.sin(2 * np.pi * x / L)))
+    base = Ellipse(1.2, 0.3).points(12)
+    sections = tuple(Polygon(tuple(map(tuple, base * [1.0, 1.0 + 0.2 * np.cos(2 * np.pi * k / 12)])))
+                     for k in range(13))
+    yarn = Yarn(nodes, NodeSections(sections), "cubic", repeats=[[L, 0, 0], [0, 3.0, 0]])
+    return Textile(Cell(L, 3.0, z_range=(-0.1, 0.6)), [yarn], name="corrected")
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("make", [lambda: build("crowfoot_satin"), lambda: build("orthogonal"),
+                                  corrected_style_textile])
+def test_tg3_round_trip_is_identical(make, tmp_path):
+    t = make()
+    write_tg3(t, tmp_path / "m.tg3")
+    back = read_tg3(tmp_path / "m.tg3")
+    same_textile(t, back)
+    a, b = measure(t, 60), measure(back, 60)
+    assert a == b
+
+
+@pytest.mark.serial
+def test_written_tg3_has_what_texgen_needs(tmp_path):
+    # shared/reference/README.md: mandatory yarn attributes, 6 domain planes, per-node polygon
+    # sections for InterpNode yarns, periodic last node = first + repeat.
+    t = corrected_style_textile()
+    write_tg3(t, tmp_path / "m.tg3")
+    root = ET.parse(tmp_path / "m.tg3").getroot()
+    assert root.tag == "TexGenModel" and root.get("version") == "3.14.0"
+    textile = root.find("Textile")
+    assert textile.get("type") == "CTextile"
+    planes = textile.find("Domain").findall("Plane")
+    assert len(planes) == 6
+    for y in textile.findall("Yarn"):
+        for attr in ("NumSlaveNodes", "NumSectionPoints", "NeedsBuilding"):
+            assert int(y.get(attr)) > 0
+        assert int(y.get("NumSectionPoints")) >= 4 * 12  # 4x the polygon's vertices
+        assert y.find("Interpolation").get("type") == "CInterpolationCubic"
+        node_sections = y.find("YarnSection").findall("NodeSection")
+        assert len(node_sections) == len(y.findall("MasterNode")) == 13
+        assert all(ns.find("Section").get("type") == "CSectionPolygon" for ns in node_sections)
+        first = np.array(y.findall("MasterNode")[0].get("Position").split(","), float)
+        last = np.array(y.findall("MasterNode")[-1].get("Position").split(","), float)
+        rep = np.array(y.findall("Repeat")[0].get("value").split(","), float)
+        assert np.allclose(last, first + rep)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("make", [lambda: build("twill"), corrected_style_textile])
+def test_json_round_trip_is_identical(make, tmp_path):
+    t = make()
+    save_model(t, tmp_path / "m.json")
+    same_textile(t, load_model(tmp_path / "m.json"))
+
+
+@pytest.mark.serial
+def test_toml_weave_description(tmp_path):
+    (tmp_path / "m.toml").write_text(
+        'name = "satin"\n[weave]\ntype = "crowfoot_satin"\nspacing = 2.8\nwidth = 2.5\nheight = 0.35\n'
+        'thickness = 0.7\n[resolution]\nspacing = 0.2\n')
+    t = load_model(tmp_path / "m.toml")
+    assert t.name == "satin" and len(t.yarns) == 8 and t.resolution.spacing == 0.2
+    assert t.cell.lx == pytest.approx(11.2)
+
+
+@pytest.mark.serial
+def test_surface_export_is_closed_and_matches_volume(tmp_path):
+    t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
+    write_surfaces(t, tmp_path / "s.vtu")
+    write_surfaces(t, tmp_path / "s.stl")
+    mesh = meshio.read(tmp_path / "s.vtu")
+    assert sorted(np.unique(mesh.cell_data["yarn"][0])) == list(range(8))
+    assert len(meshio.read(tmp_path / "s.stl").cells_dict["triangle"]) == len(mesh.cells_dict["triangle"])
+    # Each clipped yarn surface is closed: its enclosed volume equals the ray-cast volume (grid error).
+    m = measure(t, 300)
+    for i in (0, 5):
+        surf = t.surface(i)
+        assert surf.n_open_edges == 0
+        assert surf.volume == pytest.approx(m["yarn_volume"]["per_yarn"][i], rel=3e-3)
+
+
+@pytest.mark.serial
+def test_cli_build_and_report(tmp_path):
+    out = tmp_path / "plain"
+    run = subprocess.run(["textile-fenicsx", "build", "plain", "--spacing", "2", "--width", "1.8",
+                          "--height", "0.3", "--out", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["plain.json", "plain.png", "plain.stl", "plain.tg3", "plain.vtu"]
+    rep = subprocess.run(["textile-fenicsx", "report", str(out / "plain.tg3"), "--grid", "80"],
+                         capture_output=True, text=True)
+    assert rep.returncode == 0, rep.stderr
+    d = json.loads(rep.stdout)
+    assert set(d) >= {"yarn_volume", "interpenetration", "thickness", "crimp", "vf"}
+    assert d["yarn_volume"]["total"] == pytest.approx(sum(d["yarn_volume"]["per_yarn"]))
+    assert len(d["crimp"]) == 4 and d["vf"] is None
+
+
+@pytest.mark.serial
+def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path):
+    out = tmp_path / "bad"
+    run = subprocess.run(["textile-fenicsx", "build", "plain", "--width", "3", "--out", str(out)],
+                         capture_output=True, text=True)
+    assert run.returncode == 2
+    assert "warp 0: width 3 mm is larger than its spacing 2 mm" in run.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+# --- bad input: clear errors naming the culprit ---------------------------------------------
+
+@pytest.mark.serial
+@pytest.mark.parametrize("call, message", [
+    (lambda: Ellipse(-1, 0.3), "ellipse width must be > 0"),
+    (lambda: Ellipse(1, float("nan")), "ellipse height must be finite"),
+    (lambda: build("satin", harness=5, move=2, power=0), "section power must be > 0"),
+    (lambda: weave2d([[1, 0], [0]]), "rectangular"),
+    (lambda: weave2d([[1, 1], [0, 1]]), "warp 0 never interlaces"),
+    (lambda: weave2d([[1, 0], [1, 0]]), "weft 0 never interlaces"),
+    (lambda: weave2d([[1, 2], [0, 1]]), "entries must be 0"),
+    (lambda: weave2d([[1, 0], [0, 1]], spacing=[2, 2], width=[1.8, 2.5]), "warp 1: width 2.5 mm is larger"),
+    (lambda: weave2d([[1, 0], [0, 1]], height=-0.3), "warp height[0] must be > 0"),
+    (lambda: Yarn([[0, 0, 0]], ConstantSection(Ellipse(1, 1)), name="y7"), "y7: needs at least 2 master nodes"),
+    (lambda: Yarn([[0, 0, 0], [1, 0, np.inf]], ConstantSection(Ellipse(1, 1))), "not finite"),
+    (lambda: Yarn([[0, 0, 0], [1, 0, 0]], ConstantSection(Ellipse(1, 1)), "spline"), "interpolation must be one of"),
+    (lambda: Cell(0, 1), "cell size lx must be > 0"),
+    (lambda: build("orthogonal", weft_width=2.7), "narrower than the binder height"),
+    (lambda: build("satin", harness=6, move=2), "coprime"),
+])
+def test_bad_values_are_named(call, message):
+    with pytest.raises(TextileError, match=None) as err:
+        call()
+    assert message in str(err.value)
+
+
+@pytest.fixture(scope="module")
+def satin_tg3(reference_dir):
+    return (reference_dir / "models" / "satin4.tg3").read_text()
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s[: len(s) // 2], "not valid XML"),
+    (lambda s: s.replace("CSectionEllipse", "CSectionHybrid", 1), "unsupported section type 'CSectionHybrid'"),
+    (lambda s: s.replace("CInterpolationBezier", "CInterpolationAdjusted", 1), "unsupported interpolation type 'CInterpolationAdjusted'"),
+    (lambda s: s.replace("<Repeat ", "<Wobble ", 1), "unsupported element <Wobble>"),
+    (lambda s: s.replace('Width="2.500000000000e+00"', 'Width="-2.5"', 1), "ellipse width must be > 0"),
+    (lambda s: s.replace('Position="0.000000000000e+00, 0.000000000000e+00, 1.75', 'Position="nan, 0, 1.75', 1), "non-finite"),
+    (lambda s: s.replace("TexGenModel", "Model"), "expected <TexGenModel>"),
+])
+def test_bad_tg3_is_named(edit, message, satin_tg3, tmp_path):
+    path = tmp_path / "bad.tg3"
+    path.write_text(edit(satin_tg3))
+    with pytest.raises(FormatError) as err:
+        read_tg3(path)
+    assert message in str(err.value)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("text, message", [
+    ("[weave\ntype='plain'", "malformed TOML"),
+    ("[weave]\ntype = 'plain'\nspacng = 2.0\n", "spacng"),
+    ("[cell]\nlx = 4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0, 0]]\nsection = {type = 'circle'}\n",
+     "section type 'circle' unknown"),
+    ("[cell]\nlx = 4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0]]\nsection = {type = 'ellipse', width = 1, height = 0.2}\n",
+     "yarns[0].nodes"),
+    ("[cell]\nlx = -4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0, 0]]\nsection = {type = 'ellipse', width = 1, height = 0.2}\n",
+     "cell size lx must be > 0"),
+    ("name = 'x'\n", "give either a [weave] table or [cell] with [[yarns]]"),
+])
+def test_bad_toml_is_named(text, message, tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(FormatError) as err:
+        load_model(path)
+    assert message in str(err.value)
+
+
+# --- property-based ------------------------------------------------------------------------
+
+@pytest.mark.serial
+@settings(max_examples=25, deadline=None, suppress_health_check=SUPPRESS)
+@given(spacing=st.floats(1.0, 4.0), fill=st.floats(0.5, 1.0), height=st.floats(0.1, 0.5),
+       over=st.integers(1, 3), under=st.integers(1, 3))
+def test_twill_builder_volume_is_section_area_times_length(spacing, fill, height, over, under):
+    # Any valid twill: the warp volume in the cell equals its section's polygon area times its
+    # centreline length (within the grid's error), and every warp and weft interlaces.
+    t = build("twill", over=over, under=under, spacing=spacing, width=fill * spacing, height=height)
+    t.resolution = type(t.resolution)(spacing=0.1, section_points=48)
+    y = t.yarns[0]
+    from textile_fenicsx.sections import polygon_area
+
+    expected = polygon_area(y.section.section.points(48)) * y.length()
+    xy, dA = t.cell.grid(160)
+    col = t.columns(xy, yarns=[0])
+    assert np.sum(col.top - col.bottom) * dA == pytest.approx(expected, rel=0.01)
+
+
+@pytest.mark.serial
+@settings(max_examples=200, deadline=None, suppress_health_check=SUPPRESS)
+@given(data=st.data())
+def test_tg3_reader_raises_only_format_errors(data, satin_tg3, tmp_path):
+    # Cut or corrupt the file anywhere: the reader answers with FormatError, nothing else.
+    text = satin_tg3
+    kind = data.draw(st.sampled_from(["truncate", "splice", "delete"]))
+    i = data.draw(st.integers(0, len(text) - 1))
+    if kind == "truncate":
+        text = text[:i]
+    elif kind == "splice":
+        text = text[:i] + data.draw(st.text(max_size=8)) + text[i + 1:]
+    else:
+        text = text[:i] + text[i + data.draw(st.integers(1, 200)):]
+    path = tmp_path / "fuzz.tg3"
+    path.write_text(text)
+    try:
+        read_tg3(path)
+    except FormatError:
+        pass
+
+
+@pytest.mark.serial
+@settings(max_examples=200, deadline=None, suppress_health_check=SUPPRESS)
+@given(value=st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=5),
+                       st.lists(st.floats(), max_size=4), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2)),
+       key=st.sampled_from(["lx", "nodes", "section", "interpolation", "repeats", "periodic", "width", "type", "yarns"]))
+def test_model_reader_raises_only_format_errors(value, key, tmp_path):
+    # Any field replaced by any JSON value: FormatError naming it, or a valid model.
+    model = {"cell": {"lx": 4.0, "ly": 2.0},
+             "yarns": [{"nodes": [[0, 1, 0.1], [2, 1, 0.1], [4, 1, 0.1]], "interpolation": "bezier",
+                        "repeats": [[4, 0, 0], [0, 2, 0]], "periodic": True,
+                        "section": {"type": "ellipse", "width": 1.0, "height": 0.2}}]}
+    if key == "lx":
+        model["cell"]["lx"] = value
+    elif key == "yarns":
+        model["yarns"] = value
+    elif key in ("width", "type"):
+        model["yarns"][0]["section"][key] = value
+    else:
+        model["yarns"][0][key] = value
+    path = tmp_path / "fuzz.json"
+    path.write_text(json.dumps(model, allow_nan=True))
+    try:
+        load_model(path)
+    except FormatError:
+        pass

@@ -1,0 +1,234 @@
+"""Textile model: sections, centrelines, queries and metrics against closed forms and TexGen."""
+
+import json
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from scipy.special import ellipe
+
+from textile_fenicsx.metrics import crimp, measure
+from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, polygon_area
+from textile_fenicsx.textile import Cell, Resolution, Textile
+from textile_fenicsx.tg3 import read_tg3
+from textile_fenicsx.weaves import build, crowfoot_satin, orthogonal, plain, satin, twill
+from textile_fenicsx.yarn import ConstantSection, Yarn
+
+FABRICS = ["plain", "twill22", "satin4", "ortho"]
+
+
+# --- sections: closed forms -----------------------------------------------------------------
+
+@pytest.mark.serial
+@pytest.mark.parametrize("n", [8, 40, 64])
+def test_ellipse_polygon_area_is_the_inscribed_polygon_area(n):
+    # n points uniform in the ellipse's angle parameter enclose exactly (n/2) a b sin(2 pi / n).
+    e = Ellipse(2.5, 0.35)
+    a, b = e.width / 2, e.height / 2
+    assert polygon_area(e.points(n)) == pytest.approx(n / 2 * a * b * np.sin(2 * np.pi / n), rel=1e-12)
+    assert e.area() == pytest.approx(np.pi * a * b, rel=1e-15)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("section", [PowerEllipse(3.6, 0.35, 0.6), PowerEllipse(1.4, 0.16, 0.8, 0.2),
+                                     PowerEllipse(2.0, 0.5, 1.0), Lenticular(2.0, 0.5), Lenticular(2.0, 0.5, 0.1)])
+def test_section_areas_match_closed_forms(section):
+    # Power ellipse: w h sqrt(pi)/2 Gamma(p/2+1)/Gamma(p/2+3/2); lenticular: two circular segments.
+    # A fine polygon converges to it; a 2x finer one is closer (the polygon error is O(n^-2)).
+    e1 = abs(polygon_area(section.points(2000)) / section.area() - 1)
+    e2 = abs(polygon_area(section.points(4000)) / section.area() - 1)
+    assert e1 < 2e-5 and e2 < e1
+
+
+@pytest.mark.serial
+def test_power_one_is_the_ellipse_and_sections_start_at_plus_s():
+    assert PowerEllipse(2, 1, 1.0).area() == pytest.approx(Ellipse(2, 1).area(), rel=1e-14)
+    for s in (Ellipse(2, 1), PowerEllipse(2, 1, 0.6), Lenticular(2, 1, 0.2)):
+        p = s.points(16)
+        assert p[0, 0] == pytest.approx(1.0) and polygon_area(p) > 0  # +s extreme, anticlockwise
+        assert p[4, 1] == pytest.approx(0.5)  # quarter turn: the top
+
+
+# --- yarns: closed forms --------------------------------------------------------------------
+
+def _straight_yarn(L=4.0, y=1.0, z=0.2, section=Ellipse(1.5, 0.3), interpolation="bezier"):
+    nodes = [[0, y, z], [L / 2, y, z], [L, y, z]]
+    return Yarn(nodes, ConstantSection(section), interpolation, repeats=[[L, 0, 0], [0, 2.0, 0]])
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("interpolation", ["bezier", "cubic", "linear"])
+def test_straight_yarn_volume_is_area_times_length(interpolation, comm):
+    K = 64
+    t = Textile(Cell(4.0, 2.0), [_straight_yarn(interpolation=interpolation)], resolution=Resolution(0.1, K))
+    m = measure(t, 400, comm=comm)
+    exact = polygon_area(Ellipse(1.5, 0.3).points(K)) * 4.0
+    # Grid midpoint rule over the section's width: error from the sqrt-shaped edges, ~1e-4 here.
+    assert m["yarn_volume"]["total"] == pytest.approx(exact, rel=5e-4)
+    assert m["thickness"] == pytest.approx(0.3, abs=1e-3)
+    assert m["crimp"] == [pytest.approx(0.0, abs=1e-12)]
+    assert m["interpenetration"]["volume"] == 0.0
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("amplitude", [0.1, 0.3])
+def test_crimp_of_a_sinusoidal_path(amplitude):
+    # z = A sin(2 pi x / L): length / L = (2/pi) sqrt(1 + m^2) E(m^2 / (1 + m^2)), m = 2 pi A / L.
+    L, n = 5.0, 64
+    x = np.linspace(0, L, n + 1)
+    nodes = np.column_stack((x, np.zeros_like(x), amplitude * np.sin(2 * np.pi * x / L)))
+    yarn = Yarn(nodes, ConstantSection(Ellipse(1, 0.1)), "cubic", repeats=[[L, 0, 0]])
+    m = 2 * np.pi * amplitude / L
+    exact = 2 / np.pi * np.sqrt(1 + m * m) * ellipe(m * m / (1 + m * m)) - 1
+    t = Textile(Cell(L, 1.0), [yarn])
+    assert crimp(t)[0] == pytest.approx(exact, rel=1e-4)
+
+
+@pytest.mark.serial
+def test_bezier_follows_texgen_rule():
+    # Control points at P_i + T_i |P_{i+1} - P_i| / 3 with in-plane node tangents: a flat float
+    # between two equal-height nodes stays exactly flat, and the midpoint of a rise is halfway up.
+    nodes = [[0, 0, 0], [2, 0, 0], [4, 0, 1], [6, 0, 0]]
+    y = Yarn(nodes, ConstantSection(Ellipse(1, 0.2)), "bezier", tangents=np.tile([1.0, 0, 0], (4, 1)))
+    pos, tan = y.centreline(np.array([0.5, 1.5, 2.5]))
+    assert pos[0, 2] == 0.0 and np.allclose(tan[0], [1, 0, 0])
+    assert pos[1] == pytest.approx([3.0, 0, 0.5])
+
+
+@pytest.mark.serial
+def test_periodic_cubic_is_c2_across_the_seam():
+    x = np.linspace(0, 4, 5)
+    nodes = np.column_stack((x, 0.3 * np.cos(np.pi * x / 2) ** 2, 0.1 * np.sin(np.pi * x / 2)))
+    y = Yarn(nodes, ConstantSection(Ellipse(1, 0.2)), "cubic")
+    spline, drift = y._cubic()
+    for d in (1, 2):
+        assert np.allclose(spline(0.0, d), spline(4.0, d), atol=1e-12)
+    assert np.allclose(y.centreline(np.array([4.0]))[0], nodes[-1])
+
+
+# --- queries --------------------------------------------------------------------------------
+
+@pytest.mark.serial
+def test_inside_and_fibre_direction():
+    t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
+    # warp 0 at y = 1.4 is under weft 0 at x = 1.4 (pattern 0): centre z = 0.175
+    hit = t.inside([[1.4, 1.4, 0.175], [1.4, 1.4, 0.525], [1.4, 1.4, 0.8]])
+    assert hit[0, 0] and not hit[0, 4]
+    assert hit[1, 4] and not hit[1, 0]  # weft 0 is on top there
+    assert not hit[2].any()
+    d = t.fibre_direction(0, np.array([[5.6, 1.4], [0.1, 1.4]]))
+    assert np.allclose(d[0], [1, 0, 0], atol=1e-6)  # on the float: flat, along x
+    assert abs(d[1, 0]) > 0.95 and abs(d[1, 2]) > 0.1 and d[1, 1] == pytest.approx(0, abs=1e-12)  # rising
+    d = t.fibre_direction(4, np.array([[1.4, 7.0]]))
+    assert np.allclose(np.abs(d[0, 1]), 1.0, atol=1e-6)
+
+
+@pytest.mark.mpi
+def test_metrics_do_not_depend_on_where_the_cell_starts(comm):
+    # Periodicity: the same fabric sampled over a shifted cell has the same volumes.
+    a = build("twill", spacing=2.0, width=1.8, height=0.3, thickness=0.55)
+    b = build("twill", spacing=2.0, width=1.8, height=0.3, thickness=0.55)
+    b.cell = Cell(a.cell.lx, a.cell.ly, 0.77, -0.31)
+    ma, mb = measure(a, 200, comm), measure(b, 200, comm)
+    # The grid's midpoint rule across sqrt-shaped section edges errs by ~(h / width)^1.5 = 3e-3 here,
+    # differently for each placement of the grid: that bounds the agreement.
+    assert mb["yarn_volume"]["total"] == pytest.approx(ma["yarn_volume"]["total"], rel=5e-3)
+    assert mb["interpenetration"]["volume"] == pytest.approx(ma["interpenetration"]["volume"], rel=2e-2)
+    assert mb["thickness"] == pytest.approx(ma["thickness"], abs=1e-3)
+
+
+@pytest.mark.mpi
+def test_queries_split_over_ranks_agree_with_serial(comm):
+    t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
+    serial = measure(t, 120)
+    split = measure(t, 120, comm=comm)
+    assert split["yarn_volume"]["per_yarn"] == pytest.approx(serial["yarn_volume"]["per_yarn"], rel=1e-12)
+    assert split["interpenetration"]["volume"] == pytest.approx(serial["interpenetration"]["volume"], rel=1e-12)
+    assert split["interpenetration"]["max_depth"] == serial["interpenetration"]["max_depth"]
+    assert split["thickness"] == serial["thickness"]
+
+
+# --- reference: TexGen's own numbers (shared/reference/texgen_measurements.json) ------------
+
+@pytest.fixture(scope="module")
+def reference(reference_dir):
+    data = json.loads((reference_dir / "texgen_measurements.json").read_text())
+    return {k: (read_tg3(reference_dir / "models" / f"{k}.tg3"), data[k]["initial"]) for k in FABRICS}
+
+
+@pytest.fixture(scope="module")
+def measured(reference):
+    return {k: measure(t, 200) for k, (t, _) in reference.items()}
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("fabric", FABRICS)
+def test_reference_volume_and_thickness(fabric, reference, measured):
+    _, ref = reference[fabric]
+    m = measured[fabric]
+    # Issue 3: within 1 %. TexGen's 40-point section polygons enclose 0.4 % less than the curve.
+    assert m["yarn_volume"]["total"] == pytest.approx(ref["yarn_volume_sum_in_domain"], rel=0.01)
+    for ours, theirs in zip(m["yarn_volume"]["per_yarn"], ref["yarns"]):
+        assert ours == pytest.approx(theirs["volume_in_domain_grid"], rel=0.01)
+    assert m["thickness"] == pytest.approx(ref["thickness"], rel=0.01)
+    for ours, theirs in zip(m["crimp"], ref["yarns"]):
+        assert ours == pytest.approx(theirs["crimp"], rel=5e-3, abs=1e-6)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("fabric", ["plain", "twill22", "satin4"])
+def test_reference_interpenetration_2d_weaves(fabric, reference, measured):
+    _, ref = reference[fabric]
+    m = measured[fabric]
+    # Issue 3: initial interpenetration volume within 5 %; depth to the grid's z accuracy.
+    assert m["interpenetration"]["volume"] == pytest.approx(ref["interpenetration"]["volume"], rel=0.05)
+    assert m["interpenetration"]["max_depth"] == pytest.approx(ref["interpenetration"]["max_z_overlap"], abs=5e-3)
+    assert len(m["interpenetration"]["pairs"]) == ref["interpenetration"]["n_overlapping_pairs"]
+
+
+@pytest.mark.serial
+def test_reference_interpenetration_orthogonal(reference, measured):
+    # The orthogonal weave's overlap is a sliver where a binder's flat power-ellipse face grazes
+    # a weft: 0.015 mm^3 in a 223 mm^3 cell. It depends on how the sections are polygonised (ours:
+    # 64 points, TexGen: 40); we hold it to 0.005 mm^3 (2e-5 of the cell) and the same 8 pairs.
+    _, ref = reference["ortho"]
+    m = measured["ortho"]
+    assert m["interpenetration"]["volume"] == pytest.approx(ref["interpenetration"]["volume"], abs=5e-3)
+    assert m["interpenetration"]["max_depth"] == pytest.approx(ref["interpenetration"]["max_z_overlap"], abs=5e-3)
+    assert len(m["interpenetration"]["pairs"]) == ref["interpenetration"]["n_overlapping_pairs"]
+
+
+@pytest.mark.serial
+def test_crowfoot_builder_reproduces_texgen_satin(reference):
+    # TexGen's satin4 (SwapPosition at (0,0), (1,1), (2,3), (3,2)) has the same master nodes as our
+    # builder, shifted by half a spacing (TexGen's yarn 0 lies on y = 0).
+    texgen, _ = reference["satin4"]
+    ours = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
+    for a, b in zip(ours.yarns, texgen.yarns):
+        assert np.allclose(a.nodes, b.nodes + [1.4, 1.4, 0], atol=1e-12)
+        assert a.section == b.section
+
+
+# --- builders ------------------------------------------------------------------------------
+
+@pytest.mark.serial
+def test_patterns():
+    assert plain().tolist() == [[1, 0], [0, 1]]
+    assert twill(2, 2).tolist() == [[1, 1, 0, 0], [0, 1, 1, 0], [0, 0, 1, 1], [1, 0, 0, 1]]
+    s = satin(5, 2)
+    assert (s == 0).sum(axis=0).tolist() == [1] * 5 and (s == 0).sum(axis=1).tolist() == [1] * 5
+    assert [tuple(x) for x in np.argwhere(crowfoot_satin() == 0)] == [(0, 0), (1, 1), (2, 3), (3, 2)]
+
+
+@pytest.mark.serial
+def test_orthogonal_structure():
+    t = orthogonal()
+    names = [y.name for y in t.yarns]
+    assert sum(n.startswith("warp") for n in names) == 4 and sum(n.startswith("binder") for n in names) == 2
+    assert sum(n.startswith("weft") for n in names) == 12
+    assert (t.cell.lx, t.cell.ly) == (11.2, pytest.approx(10.4))
+    m = measure(t, 100)
+    # binders pass over the top weft layer and under the bottom one: thickness = stack + 2 binders
+    # (+ under 0.01 mm where the Bezier turns of a binder overshoot its level)
+    stack = 3 * 0.3 + 2 * 0.35
+    assert stack + 2 * 0.16 - 1e-3 <= m["thickness"] <= stack + 2 * 0.16 + 0.01
