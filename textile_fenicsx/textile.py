@@ -182,11 +182,9 @@ class Textile:
         out[col.point[hit], col.yarn[hit]] = True
         return out
 
-    def fibre_direction(self, i: int, points) -> np.ndarray:
-        """Unit fibre tangents (N, 3) of yarn i at the centreline points nearest to `points`.
-
-        points: (N, 2) in-plane (nearest in plan) or (N, 3) positions.
-        """
+    def nearest_centreline(self, i: int, points) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and unit tangents (N, 3) of yarn i's centreline (periodic copies included) at
+        the samples nearest to `points`: (N, 2) in-plane (nearest in plan) or (N, 3) positions."""
         points = np.asarray(points, float)
         dim = points.shape[-1]
         yarn = self.yarns[i]
@@ -196,8 +194,15 @@ class Textile:
         shifts = self._translations(yarn, lo, hi) or [np.zeros(3)]
         cloud = np.concatenate([pos + t for t in shifts])
         tangents = np.tile(tan, (len(shifts), 1))
+        if len(points.reshape(-1, dim)) == 0:
+            return np.zeros((0, 3)), np.zeros((0, 3))
         _, k = cKDTree(cloud[:, :dim]).query(points.reshape(-1, dim))
-        return tangents[k]
+        return cloud[k], tangents[k]
+
+    def fibre_direction(self, i: int, points) -> np.ndarray:
+        """Unit fibre tangents (N, 3) of yarn i at the centreline points nearest to `points`
+        ((N, 2) in-plane or (N, 3) positions)."""
+        return self.nearest_centreline(i, points)[1]
 
     def surface(self, i: int, clip: bool = True):
         """Closed triangulated surface of yarn i (pyvista PolyData), clipped to the cell when asked."""

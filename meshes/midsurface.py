@@ -1,0 +1,156 @@
+"""Mid-surfaces of the yarns on the projected mesh, and the structure the solver couples them by.
+
+For each yarn i (DESIGN.md sections 4-6):
+- its footprint cells as a submesh (all local cells with the tag, owned and ghost, so that dS forms
+  work) with P2 space Vs and the map of its dofs to the parent P2 space;
+- at every P2 dof point the initial mid-height z0 = (top + bottom) / 2 and thickness t = top - bottom
+  from the model's vertical rays, and the in-plane fibre direction d per cell (DG0).
+Between yarns: in every cell covered by two or more yarns, the vertical stacking order (by mean z0
+over the cell) and the pairs of vertically adjacent yarns (upper, lower), with the dof pairs that sit
+at the same points (exact: crossing yarns share the parent's nodes).
+Across the cell: for every yarn, its dofs on the right/top sides paired with their periodic images
+on the left/bottom sides (global numbering, so pairs that straddle ranks are found too).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+from scipy.spatial import cKDTree
+
+import dolfinx
+from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.meshes.projected import ProjectedMesh
+
+
+@dataclass
+class MidSurface:
+    """One yarn's mid-surface on its footprint (lengths mm)."""
+
+    yarn: int
+    mesh: dolfinx.mesh.Mesh          # submesh of the footprint cells
+    parent_cells: np.ndarray         # submesh cell -> parent cell (local indices)
+    V: dolfinx.fem.FunctionSpace     # P2 on the submesh
+    to_parent: np.ndarray            # submesh dof -> parent P2 dof (local indices)
+    z0: dolfinx.fem.Function         # initial mid-height
+    t: dolfinx.fem.Function          # thickness
+    d: dolfinx.fem.Function          # in-plane unit fibre direction, DG0 vector
+
+
+@dataclass
+class MidSurfaces:
+    """All yarns' mid-surfaces on one projected mesh, with contact and periodic structure."""
+
+    projected: ProjectedMesh
+    V: dolfinx.fem.FunctionSpace                  # P2 on the whole cell (parent)
+    yarns: list = field(default_factory=list)     # MidSurface per yarn
+    contact: dict = field(default_factory=dict)   # (upper, lower) -> local parent cells
+    contact_dofs: dict = field(default_factory=dict)  # (upper, lower) -> (n, 2) submesh dof pairs
+    periodic: list = field(default_factory=list)  # per yarn: (n, 2) global parent dofs (image, source)
+
+
+def _parent_space(msh):
+    return dolfinx.fem.functionspace(msh, ("Lagrange", 2))
+
+
+def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
+    """Sample z0, t and d of every yarn on its footprint and build the coupling structure."""
+    msh = projected.mesh
+    comm = msh.comm
+    textile = projected.textile
+    V = _parent_space(msh)
+    X = V.tabulate_dof_coordinates()[:, :2]
+    out = MidSurfaces(projected, V)
+    mean_z0 = {}
+    for i in range(len(textile.yarns)):
+        cells = projected.yarn_cells(i)
+        n_owned = comm.allreduce(int(np.sum(cells < msh.topology.index_map(2).size_local)), op=MPI.SUM)
+        if n_owned == 0:
+            raise GeometryError(f"{textile.yarns[i].name} (yarn {i}) has an empty footprint on the mesh")
+        sub, emap, _, _ = dolfinx.mesh.create_submesh(msh, 2, cells)
+        emap = np.asarray(emap)
+        Vs = dolfinx.fem.functionspace(sub, ("Lagrange", 2))
+        s2p = np.empty(Vs.dofmap.index_map.size_local + Vs.dofmap.index_map.num_ghosts, dtype=np.int64)
+        s2p[Vs.dofmap.list.ravel()] = V.dofmap.list[emap].ravel()
+        xy = X[s2p]
+        bot, top = textile.columns(xy, yarns=[i]).envelope(len(textile.yarns))
+        bot, top = bot[:, i], top[:, i]
+        missing = np.isnan(bot)
+        if np.any(missing):  # rays grazing the footprint edge: thickness 0 at the centreline's height
+            bot[missing] = top[missing] = textile.nearest_centreline(i, xy[missing])[0][:, 2]
+        z0, t = dolfinx.fem.Function(Vs, name="z0"), dolfinx.fem.Function(Vs, name="t")
+        z0.x.array[:] = (top + bot) / 2
+        t.x.array[:] = top - bot
+        W = dolfinx.fem.functionspace(sub, ("DG", 0, (2,)))
+        d = dolfinx.fem.Function(W, name="d")
+        mid_xy = dolfinx.mesh.compute_midpoints(sub, 2, np.arange(len(emap), dtype=np.int32))[:, :2]
+        tan = textile.fibre_direction(i, mid_xy)[:, :2]
+        norm = np.linalg.norm(tan, axis=1, keepdims=True)
+        flat = norm[:, 0] < 1e-9  # a vertical stretch: use the yarn's overall direction
+        axis = textile.yarns[i].period[:2]
+        tan[flat] = axis / np.linalg.norm(axis)
+        norm[flat] = 1.0
+        d.x.array[:] = (tan / norm).ravel()
+        out.yarns.append(MidSurface(i, sub, emap, Vs, s2p, z0, t, d))
+        # mean z0 per parent cell, for the stacking order
+        cell_dofs = Vs.dofmap.list
+        mean_z0[i] = dict(zip(emap.tolist(), z0.x.array[cell_dofs].mean(axis=1).tolist()))
+    _contact_structure(out, mean_z0)
+    _periodic_structure(out)
+    if log is not None and comm.rank == 0:
+        dofs = [y.V.dofmap.index_map.size_global for y in out.yarns]
+        log(f"midsurfaces: {len(dofs)} yarns, {sum(dofs)} dofs, {len(out.contact)} contact pairs")
+    return out
+
+
+def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
+    """Stacking order per multi-yarn cell and the dof pairs of vertically adjacent yarns."""
+    proj = ms.projected
+    by_tag = {t: s for t, s in proj.coverage.items() if len(s) >= 2}
+    pairs = {}
+    for tag, yarns in by_tag.items():
+        for c in proj.cell_tags.indices[proj.cell_tags.values == tag]:
+            order = sorted(yarns, key=lambda y: -mean_z0[y][int(c)])  # top first
+            for upper, lower in zip(order[:-1], order[1:]):
+                pairs.setdefault((upper, lower), []).append(int(c))
+    ms.contact = {k: np.array(sorted(v), dtype=np.int32) for k, v in pairs.items()}
+    # dof pairs: the same parent dof seen from the two yarns' submeshes
+    for (u, l), cells in ms.contact.items():
+        parent = np.unique(ms.V.dofmap.list[cells].ravel())
+        su, sl = ms.yarns[u], ms.yarns[l]
+        inv_u = dict(zip(su.to_parent.tolist(), range(len(su.to_parent))))
+        inv_l = dict(zip(sl.to_parent.tolist(), range(len(sl.to_parent))))
+        ms.contact_dofs[(u, l)] = np.array([[inv_u[p], inv_l[p]] for p in parent.tolist()], dtype=np.int64)
+
+
+def _periodic_structure(ms: MidSurfaces) -> None:
+    """Per yarn, its global parent dofs on the right/top sides with their left/bottom images."""
+    V, comm = ms.V, ms.V.mesh.comm
+    cell = ms.projected.textile.cell
+    x0, x1, y0, y1 = cell.bounds
+    tol = 1e-8 * max(cell.lx, cell.ly)
+    imap = V.dofmap.index_map
+    n_owned = imap.size_local
+    X = V.tabulate_dof_coordinates()[:n_owned, :2]
+    glob = imap.local_to_global(np.arange(n_owned, dtype=np.int32))
+    on_side = (np.abs(X[:, 0] - x0) < tol) | (np.abs(X[:, 0] - x1) < tol) | \
+              (np.abs(X[:, 1] - y0) < tol) | (np.abs(X[:, 1] - y1) < tol)
+    gathered = comm.allgather((X[on_side], glob[on_side]))
+    Xb = np.vstack([g[0] for g in gathered])
+    Gb = np.concatenate([g[1] for g in gathered])
+    # every boundary dof maps to its image in [x0, x1) x [y0, y1): the representative
+    rep = Xb.copy()
+    rep[np.abs(rep[:, 0] - x1) < tol, 0] = x0
+    rep[np.abs(rep[:, 1] - y1) < tol, 1] = y0
+    tree = cKDTree(Xb)
+    dist, k = tree.query(rep)
+    if np.any(dist > tol):
+        bad = Xb[np.argmax(dist)]
+        raise GeometryError(f"the projected mesh is not periodic: the node at ({bad[0]:.6f}, {bad[1]:.6f}) "
+                            "has no partner on the opposite side")
+    moved = Gb != Gb[k]
+    pairs = np.column_stack((Gb[moved], Gb[k][moved]))  # (image, source)
+    for y in ms.yarns:
+        own = np.unique(imap.local_to_global(y.to_parent[y.to_parent < n_owned].astype(np.int32)))
+        mine = np.isin(pairs[:, 0], np.concatenate(comm.allgather(own)))
+        ms.periodic.append(pairs[mine])

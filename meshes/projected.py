@@ -1,0 +1,297 @@
+"""The projected-region mesh of the unit cell (DESIGN.md section 4).
+
+1. Footprint of each yarn: its outline seen along z, from the lateral extremes of its sections at
+   stations a quarter of the seed apart, chained over neighbouring periods and clipped to the cell.
+2. gmsh OCC fragments the cell by all footprints into basic regions, each covered by a fixed set of
+   yarns (one physical group per set), with periodic opposite sides and element size = seed.
+   Nearly coincident yarn edges are merged by OCC's boolean tolerance instead of leaving slivers.
+3. `dolfinx.io.gmshio.model_to_mesh` on rank 0, distributed with shared-facet ghosts (dS forms).
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+
+import dolfinx
+from dolfinx.io import gmshio
+from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.textile import Textile
+
+# How fast element size may grow away from narrow regions (size change per unit distance).
+GROWTH = 1.0
+
+
+@dataclass(frozen=True)
+class MeshOptions:
+    """Projected-mesh settings.
+
+    seed: target element size [mm]. sliver: edges of different yarns closer than this [mm] are merged
+    (default seed / 20). max_slope: steepest centreline slope |dz| / |dxy| the method accepts; above
+    it the through-thickness part of a yarn is narrower in plan than a tenth of its rise and cannot
+    be a plate (default 10, i.e. 84 degrees). allow_steep: warn instead of stopping.
+    """
+
+    seed: float = 0.5
+    sliver: float | None = None
+    max_slope: float = 10.0
+    allow_steep: bool = False
+
+    def __post_init__(self):
+        if not (np.isfinite(self.seed) and self.seed > 0):
+            raise TextileError(f"mesh seed must be a positive size in mm, got {self.seed!r}")
+        if self.sliver is not None and not (np.isfinite(self.sliver) and self.sliver >= 0):
+            raise TextileError(f"sliver tolerance must be >= 0 mm, got {self.sliver!r}")
+        if not self.max_slope > 0:
+            raise TextileError(f"max_slope must be > 0, got {self.max_slope!r}")
+
+
+@dataclass
+class ProjectedMesh:
+    """The cell's triangle mesh with, per cell, the set of yarns covering it.
+
+    mesh: dolfinx Mesh (P1 triangles, shared-facet ghosts). cell_tags: MeshTags of the region tag per
+    cell. coverage: region tag -> tuple of yarn indices over it (empty tuple: no yarn).
+    stats: counts and quality measured on rank 0 (JSON-ready).
+    """
+
+    mesh: dolfinx.mesh.Mesh
+    cell_tags: dolfinx.mesh.MeshTags
+    coverage: dict
+    textile: Textile
+    options: MeshOptions
+    stats: dict = field(default_factory=dict)
+
+    def yarn_cells(self, i: int) -> np.ndarray:
+        """Local cells (owned and ghost) covered by yarn i."""
+        tags = [t for t, s in self.coverage.items() if i in s]
+        return np.sort(self.cell_tags.indices[np.isin(self.cell_tags.values, tags)])
+
+
+def check_slopes(textile: Textile, options: MeshOptions) -> list[str]:
+    """Raise GeometryError naming yarn, place and slope where a centreline is steeper than allowed."""
+    warnings = []
+    for i, y in enumerate(textile.yarns):
+        s = y.stations(options.seed / 8)
+        pos, tan = y.centreline(s)
+        slope = np.abs(tan[:, 2]) / np.maximum(np.linalg.norm(tan[:, :2], axis=1), 1e-300)
+        k = int(np.argmax(slope))
+        if slope[k] > options.max_slope:
+            x, yy, z = pos[k]
+            msg = (f"{y.name} (yarn {i}) is too steep for the projected-plate method at "
+                   f"({x:.3f}, {yy:.3f}, {z:.3f}) mm: slope {slope[k]:.3g} (angle "
+                   f"{np.degrees(np.arctan(slope[k])):.1f} deg) exceeds max_slope {options.max_slope:g}")
+            if not options.allow_steep:
+                raise GeometryError(msg + "; smooth the yarn path, or allow_steep to continue anyway")
+            warnings.append(msg)
+    return warnings
+
+
+def footprint_outlines(textile: Textile, i: int, spacing: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Outlines of yarn i seen along z: one (right, left) pair of side chains ((n, 2) each, in the
+    yarn's direction) per lateral copy, long enough to cover the cell along the yarn (several periods
+    chained). The closed outline is right + reversed left."""
+    yarn = textile.yarns[i]
+    s = yarn.stations(spacing)
+    pos, _, up, side = yarn.frames(s)
+    sec = yarn.section_points(s, textile.resolution.section_points)
+    pts = pos[:, None, :2] + sec[..., :1] * side[:, None, :2] + sec[..., 1:] * up[:, None, :2]
+    # Lateral direction: the in-plane normal of the yarn's overall direction.
+    axis = yarn.period[:2] if yarn.periodic else (yarn.nodes[-1] - yarn.nodes[0])[:2]
+    axis = axis / np.linalg.norm(axis)
+    normal = np.array([-axis[1], axis[0]])
+    lateral = np.einsum("mkj,j->mk", pts - pos[:, None, :2], normal)
+    m = np.arange(len(s))
+    left, right = pts[m, np.argmax(lateral, axis=1)], pts[m, np.argmin(lateral, axis=1)]
+    if not yarn.periodic:
+        return [(right, left)]
+    P = yarn.period[:2]
+    lo, hi = pts.reshape(-1, 2).min(axis=0), pts.reshape(-1, 2).max(axis=0)
+    outlines = {}
+    for t in textile._translations(yarn, np.r_[lo, 0], np.r_[hi, 0]):
+        k = int(np.round(t[:2] @ P / (P @ P)))
+        b = t[:2] - k * P
+        outlines.setdefault(tuple(np.round(b, 9)), (b, []))[1].append(k)
+    result = []
+    for b, ks in outlines.values():
+        ks = range(min(ks) - 1, max(ks) + 2)
+        R = np.concatenate([right[(1 if n else 0):] + k * P + b for n, k in enumerate(ks)])
+        L = np.concatenate([left[(1 if n else 0):] + k * P + b for n, k in enumerate(ks)])
+        result.append((R, L))
+    return result
+
+
+def _gmsh_model(textile: Textile, options: MeshOptions, comm_self_name: str):
+    """Build and mesh the gmsh model on this rank; returns (coverage, stats)."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    cell = textile.cell
+    x0, x1, y0, y1 = cell.bounds
+    sliver = options.seed / 20 if options.sliver is None else options.sliver
+    gmsh.model.add(comm_self_name)
+    gmsh.option.setNumber("Geometry.ToleranceBoolean", sliver)
+    box = occ.addRectangle(x0, y0, 0, cell.lx, cell.ly)
+    pieces = []  # (yarn, surface tag) of each footprint piece inside the cell
+    for i in range(len(textile.yarns)):
+        for right, left in footprint_outlines(textile, i, options.seed / 4):
+            # Each side is one smooth spline through its chain: gmsh then places nodes by the seed.
+            pr = [occ.addPoint(px, py, 0) for px, py in right]
+            pl = [occ.addPoint(px, py, 0) for px, py in left[::-1]]
+            loop = [occ.addSpline(pr), occ.addLine(pr[-1], pl[0]), occ.addSpline(pl), occ.addLine(pl[-1], pr[0])]
+            surf = occ.addPlaneSurface([occ.addCurveLoop(loop)])
+            clip = occ.addRectangle(x0, y0, 0, cell.lx, cell.ly)
+            out, _ = occ.intersect([(2, surf)], [(2, clip)])
+            pieces += [(i, tag) for dim, tag in out if dim == 2]
+    out, out_map = occ.fragment([(2, box)], [(2, t) for _, t in pieces])
+    occ.synchronize()
+    covering = {tag: set() for dim, tag in out if dim == 2}
+    for (yarn, _), children in zip(pieces, out_map[1:]):
+        for dim, tag in children:
+            if dim == 2:
+                covering[tag].add(yarn)
+    sets = sorted({tuple(sorted(s)) for s in covering.values()})
+    coverage = {k + 1: s for k, s in enumerate(sets)}
+    tag_of = {s: k for k, s in coverage.items()}
+    for k, s in coverage.items():
+        surfaces = [t for t, c in covering.items() if tuple(sorted(c)) == s]
+        gmsh.model.addPhysicalGroup(2, surfaces, k, name="yarns " + (" ".join(map(str, s)) or "none"))
+
+    # Periodic sides: each right (top) boundary curve is a translated copy of a left (bottom) one;
+    # pair them by their centres of mass.
+    tol = max(sliver, 1e-6 * max(cell.lx, cell.ly))
+    curves = [c for _, c in gmsh.model.getEntities(1)]
+    centres = np.array([occ.getCenterOfMass(1, c) for c in curves]).reshape(-1, 3)
+    for axis, (lo, hi) in ((0, (x0, x1)), (1, (y0, y1))):
+        on_lo = [k for k, c in enumerate(curves) if _on_line(curves[k], axis, lo, tol)]
+        on_hi = [k for k, c in enumerate(curves) if _on_line(curves[k], axis, hi, tol)]
+        shift = np.zeros(3)
+        shift[axis] = hi - lo
+        masters, slaves = [], []
+        for k in on_lo:
+            d = np.linalg.norm(centres[on_hi] - (centres[k] + shift), axis=1) if on_hi else np.array([np.inf])
+            j = int(np.argmin(d))
+            if d[j] > tol:
+                raise GeometryError(f"periodic boundary curves do not match across the cell: the curve "
+                                    f"centred at {np.round(centres[k, :2], 4).tolist()} has no copy at "
+                                    f"{'x' if axis == 0 else 'y'} = {hi:.4f} mm")
+            masters.append(curves[k])
+            slaves.append(curves[on_hi[j]])
+        if len(set(slaves)) != len(on_hi):
+            raise GeometryError(f"periodic boundary curves do not pair one to one along "
+                                f"{'x' if axis == 0 else 'y'} ({len(on_lo)} vs {len(on_hi)} curves)")
+        T = np.eye(4)
+        T[axis, 3] = hi - lo
+        gmsh.model.mesh.setPeriodic(1, slaves, masters, T.ravel().tolist())
+
+    # Narrow regions (gaps between yarns, strips along the cell sides; width ~ 2 area / perimeter) get
+    # elements twice their width: one row of well-shaped triangles across, no needles.
+    sizes = {}
+    for tag in covering:
+        area = occ.getMass(2, tag)
+        perimeter = sum(occ.getMass(1, abs(c)) for _, c in gmsh.model.getBoundary([(2, tag)], oriented=False))
+        h = min(options.seed, max(4 * area / perimeter, sliver, options.seed / 50))
+        if h < options.seed:
+            sizes.setdefault(round(h, 6), []).append(tag)
+    fields = []
+    for h, surfaces in sizes.items():
+        # size h on the narrow regions' boundaries, growing by GROWTH per unit distance up to the seed
+        curves = sorted({abs(c) for _, c in gmsh.model.getBoundary([(2, t) for t in surfaces], oriented=False)})
+        dist = gmsh.model.mesh.field.add("Distance")
+        gmsh.model.mesh.field.setNumbers(dist, "CurvesList", curves)
+        gmsh.model.mesh.field.setNumber(dist, "Sampling", 200)
+        f = gmsh.model.mesh.field.add("Threshold")
+        gmsh.model.mesh.field.setNumber(f, "InField", dist)
+        gmsh.model.mesh.field.setNumber(f, "SizeMin", h)
+        gmsh.model.mesh.field.setNumber(f, "SizeMax", options.seed)
+        gmsh.model.mesh.field.setNumber(f, "DistMin", h / 2)
+        gmsh.model.mesh.field.setNumber(f, "DistMax", h / 2 + (options.seed - h) / GROWTH)
+        fields.append(f)
+    if fields:
+        smallest = gmsh.model.mesh.field.add("Min")
+        gmsh.model.mesh.field.setNumbers(smallest, "FieldsList", fields)
+        gmsh.model.mesh.field.setAsBackgroundMesh(smallest)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", options.seed)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+    gmsh.option.setNumber("Mesh.Algorithm", 6)  # Frontal-Delaunay: well-shaped triangles
+    gmsh.option.setNumber("Mesh.Optimize", 1)
+    gmsh.model.mesh.generate(2)
+    _, node_coords, _ = gmsh.model.mesh.getNodes()
+    elem_types, elem_tags, elem_nodes = gmsh.model.mesh.getElements(2)
+    tri = np.concatenate([n for t, n in zip(elem_types, elem_nodes) if t == 2]).reshape(-1, 3)
+    xyz = node_coords.reshape(-1, 3)
+    node_index = {int(tag): k for k, tag in enumerate(gmsh.model.mesh.getNodes()[0])}
+    p = xyz[[node_index[int(t)] for t in tri.ravel()]].reshape(-1, 3, 3)[:, :, :2]
+    angles = _triangle_angles(p)
+    return coverage, {"gmsh_nodes": int(len(xyz)), "gmsh_triangles": int(len(tri)),
+                      "min_angle_deg": float(angles.min()),
+                      "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
+                      "regions": int(len(covering)), "sliver_tolerance_mm": sliver}
+
+
+def _on_line(curve: int, axis: int, value: float, tol: float) -> bool:
+    """Does gmsh curve `curve` lie on the line x[axis] = value (within tol)?"""
+    import gmsh
+
+    bb = gmsh.model.getBoundingBox(1, curve)
+    return abs(bb[axis] - value) < tol and abs(bb[axis + 3] - value) < tol
+
+
+def _triangle_angles(p: np.ndarray) -> np.ndarray:
+    """Interior angles in degrees of triangles p (T, 3, 2)."""
+    out = np.empty(p.shape[:2])
+    for k in range(3):
+        a, b, c = p[:, k], p[:, (k + 1) % 3], p[:, (k + 2) % 3]
+        u, v = b - a, c - a
+        cos = np.einsum("ij,ij->i", u, v) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+        out[:, k] = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+    return out
+
+
+def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
+                   comm: MPI.Comm = MPI.COMM_WORLD, log=print) -> ProjectedMesh:
+    """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm`."""
+    import gmsh
+
+    start = time.perf_counter()
+    warnings = check_slopes(textile, options)
+    cell = textile.cell
+    if options.seed > min(cell.lx, cell.ly):
+        raise TextileError(f"mesh seed {options.seed:g} mm is larger than the cell "
+                           f"({cell.lx:g} x {cell.ly:g} mm)")
+    coverage, stats, error = None, {}, None
+    initialised = gmsh.isInitialized()
+    if not initialised:
+        gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        if comm.rank == 0:
+            try:
+                coverage, stats = _gmsh_model(textile, options, f"projected-{textile.name}")
+            except (TextileError, Exception) as e:  # report on every rank, never hang
+                error = e
+        error = comm.bcast(error, root=0)
+        if error is not None:
+            if isinstance(error, TextileError):
+                raise error
+            raise GeometryError(f"gmsh could not mesh the projected regions: {error}") from error
+        coverage = comm.bcast(coverage, root=0)
+        partitioner = dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet)
+        msh, cell_tags, _ = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2, partitioner=partitioner)
+    finally:
+        if comm.rank == 0:
+            gmsh.model.remove()
+        if not initialised:
+            gmsh.finalize()
+    msh.topology.create_connectivity(1, 2)
+    stats = comm.bcast(stats, root=0)
+    stats.update(cells=msh.topology.index_map(2).size_global, nodes=msh.geometry.index_map().size_global,
+                 seed_mm=options.seed, time_s=time.perf_counter() - start, warnings=warnings)
+    if log is not None and comm.rank == 0:
+        log(f"mesh: seed {options.seed:g} mm: {stats['cells']} cells, {stats['nodes']} nodes, "
+            f"{stats['regions']} regions, min angle {stats['min_angle_deg']:.1f} deg, "
+            f"{stats['time_s']:.2f} s")
+    return ProjectedMesh(msh, cell_tags, coverage, textile, options, stats)
