@@ -154,3 +154,36 @@ def _periodic_structure(ms: MidSurfaces) -> None:
         own = np.unique(imap.local_to_global(y.to_parent[y.to_parent < n_owned].astype(np.int32)))
         mine = np.isin(pairs[:, 0], np.concatenate(comm.allgather(own)))
         ms.periodic.append(pairs[mine])
+
+
+def mesh_statistics(ms: MidSurfaces) -> dict:
+    """JSON-ready counts and checks of a projected mesh and its mid-surfaces (collective)."""
+    import ufl
+
+    from textile_fenicsx.meshes.projected import footprint_area
+    from textile_fenicsx.metrics import measure
+
+    proj = ms.projected
+    comm = proj.mesh.comm
+    textile = proj.textile
+    volumes = measure(textile, 200, comm=comm)["yarn_volume"]["per_yarn"]
+    per_yarn = []
+    for y in ms.yarns:
+        one = dolfinx.fem.Constant(y.mesh, 1.0)
+        area = comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(one * ufl.dx(y.mesh))), op=MPI.SUM)
+        volume = comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(y.t * ufl.dx(y.mesh))), op=MPI.SUM)
+        model_area = footprint_area(textile, y.yarn)
+        per_yarn.append({
+            "yarn": y.yarn, "name": textile.yarns[y.yarn].name,
+            "cells": y.mesh.topology.index_map(2).size_global,
+            "dofs": y.V.dofmap.index_map.size_global,
+            "footprint_area_mesh": area, "footprint_area_model": model_area,
+            "thickness_integral": volume, "yarn_volume_model": volumes[y.yarn],
+            "periodic_pairs": int(len(ms.periodic[y.yarn])),
+        })
+    stats = dict(proj.stats)
+    stats["dofs_total"] = int(sum(p["dofs"] for p in per_yarn))
+    stats["contact_pairs"] = sorted({k for part in comm.allgather(list(ms.contact)) for k in part})
+    stats["contact_pairs"] = [list(map(int, k)) for k in stats["contact_pairs"]]
+    stats["yarns"] = per_yarn
+    return stats

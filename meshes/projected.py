@@ -122,6 +122,37 @@ def footprint_outlines(textile: Textile, i: int, spacing: float) -> list[tuple[n
     return result
 
 
+def _clip_to_box(poly: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
+    """Sutherland-Hodgman: the part of polygon poly (n, 2) inside the box (convex clip window)."""
+    for axis, value, keep_above in ((0, x0, True), (0, x1, False), (1, y0, True), (1, y1, False)):
+        if len(poly) == 0:
+            break
+        inside = poly[:, axis] >= value if keep_above else poly[:, axis] <= value
+        nxt = np.roll(poly, -1, axis=0)
+        nxt_in = np.roll(inside, -1)
+        out = []
+        for p, q, pin, qin in zip(poly, nxt, inside, nxt_in):
+            if pin:
+                out.append(p)
+            if pin != qin:
+                f = (value - p[axis]) / (q[axis] - p[axis])
+                out.append(p + f * (q - p))
+        poly = np.array(out).reshape(-1, 2)
+    return poly
+
+
+def footprint_area(textile: Textile, i: int, spacing: float = 0.02) -> float:
+    """Area [mm^2] of yarn i seen along z within the cell, from its section extremes at stations
+    `spacing` apart (independent of any mesh)."""
+    area = 0.0
+    for right, left in footprint_outlines(textile, i, spacing):
+        clipped = _clip_to_box(np.vstack((right, left[::-1])), *textile.cell.bounds)
+        if len(clipped) >= 3:
+            x, y = clipped[:, 0], clipped[:, 1]
+            area += 0.5 * abs(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+    return float(area)
+
+
 def _gmsh_model(textile: Textile, options: MeshOptions, comm_self_name: str):
     """Build and mesh the gmsh model on this rank; returns (coverage, stats)."""
     import gmsh

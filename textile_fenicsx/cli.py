@@ -5,14 +5,13 @@ Exit codes: 0 success; 1 a computation failed; 2 bad input or usage (the message
 
 import argparse
 import json
-import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 from textile_fenicsx import __version__
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.files import staged_folder
 
 
 def _versions(_args) -> int:
@@ -79,13 +78,9 @@ def _build(args) -> int:
         raise TextileError(f"build {args.name}: {e}") from None
     if MPI.COMM_WORLD.rank != 0:
         return 0
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    # Everything is written to a temporary folder beside DIR and moved in at the end.
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
-        start = time.perf_counter()
-        stem = args.name
+    start = time.perf_counter()
+    stem = args.name
+    with staged_folder(args.out) as tmp:
         steps = [("model", lambda: save_model(textile, tmp / f"{stem}.json")),
                  ("TexGen", lambda: write_tg3(textile, tmp / f"{stem}.tg3")),
                  ("surfaces", lambda: (write_surfaces(textile, tmp / f"{stem}.vtu"),
@@ -95,12 +90,42 @@ def _build(args) -> int:
         for label, step in steps:
             print(f"build: writing {label} ({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
             step()
-        out.mkdir(exist_ok=True)
-        for f in sorted(tmp.iterdir()):
-            f.replace(out / f.name)
-            print(out / f.name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        names = sorted(f.name for f in tmp.iterdir())
+    for name in names:
+        print(Path(args.out) / name)
+    return 0
+
+
+def _mesh(args) -> int:
+    from mpi4py import MPI
+
+    import dolfinx.io
+    from textile_fenicsx.config import load_model
+    from textile_fenicsx.meshes.midsurface import mesh_statistics, mid_surfaces
+    from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+    from textile_fenicsx.plotting import plot_projected_mesh
+
+    comm = MPI.COMM_WORLD
+    log = (lambda msg: print(msg, file=sys.stderr, flush=True)) if comm.rank == 0 else None
+    textile = load_model(args.model)
+    options = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep)
+    start = time.perf_counter()
+    projected = projected_mesh(textile, options, comm, log=log)
+    ms = mid_surfaces(projected, log=log)
+    stats = mesh_statistics(ms)
+    stats["time_s"] = time.perf_counter() - start
+    if args.out:
+        with staged_folder(args.out, comm) as tmp:
+            with dolfinx.io.XDMFFile(comm, tmp / "mesh.xdmf", "w") as f:
+                f.write_mesh(projected.mesh)
+                projected.cell_tags.name = "covering_set"
+                f.write_meshtags(projected.cell_tags, projected.mesh.geometry)
+            if comm.rank == 0:
+                (tmp / "mesh.json").write_text(json.dumps(stats, indent=1))
+            if not args.no_picture:
+                plot_projected_mesh(projected, tmp / "mesh.png")
+    if comm.rank == 0:
+        print(json.dumps(stats, indent=1))
     return 0
 
 
@@ -154,6 +179,23 @@ def build_parser() -> argparse.ArgumentParser:
                    "binder_* spacing/width/height/power, warp_layers, n_warp_stacks, n_weft_columns)")
     p.add_argument("--no-picture", action="store_true", help="skip the PNG")
     p.set_defaults(run=_build)
+
+    p = commands.add_parser(
+        "mesh", help="mesh a model's projected regions and print mesh statistics as JSON",
+        description="Mesh the unit cell by the sets of yarns covering it (gmsh; periodic sides; element "
+        "size = seed) and sample each yarn's mid-surface. Prints JSON: cells, nodes, dofs per yarn, "
+        "minimum angle, footprint area per yarn (mesh vs model), thickness integral vs yarn volume, "
+        "contact pairs, time. With --out, writes DIR/mesh.xdmf (+.h5, cell tags = covering set), "
+        "DIR/mesh.json and DIR/mesh.png. Runs under mpirun.")
+    p.add_argument("model", help="model file: .tg3, .toml or .json")
+    p.add_argument("--seed", type=float, default=0.5, help="element size [mm] (default 0.5)")
+    p.add_argument("--out", metavar="DIR", help="write mesh.xdmf, mesh.json and mesh.png there")
+    p.add_argument("--sliver", type=float, help="merge yarn edges closer than this [mm] (default seed/20)")
+    p.add_argument("--max-slope", type=float, default=10.0,
+                   help="steepest yarn slope accepted (default 10: 84 degrees)")
+    p.add_argument("--allow-steep", action="store_true", help="warn about too-steep yarns instead of stopping")
+    p.add_argument("--no-picture", action="store_true", help="skip the PNG")
+    p.set_defaults(run=_mesh)
     return parser
 
 

@@ -115,3 +115,36 @@ def plot_textile(textile, path: Path, title: str | None = None) -> None:
         plotter.view_isometric()
         plotter.screenshot(str(path))
         plotter.close()
+
+
+def plot_projected_mesh(projected, path: Path, title: str | None = None) -> None:
+    """Write a PNG of the projected mesh, cells coloured by the set of yarns covering them (collective)."""
+    msh = projected.mesh
+    n_owned = msh.topology.index_map(2).size_local
+    tags = np.zeros(n_owned, dtype=np.int32)
+    owned = projected.cell_tags.indices < n_owned
+    tags[projected.cell_tags.indices[owned]] = projected.cell_tags.values[owned]
+    x = msh.geometry.x[msh.geometry.dofmap[:n_owned]]
+    parts = msh.comm.gather((x, tags), root=0)
+    if msh.comm.rank != 0:
+        return
+    import pyvista
+
+    x = np.vstack([p[0] for p in parts]).reshape(-1, 3)
+    tags = np.concatenate([p[1] for p in parts])
+    tri = np.arange(len(x)).reshape(-1, 3)
+    grid = pyvista.PolyData(x, np.hstack([np.full((len(tri), 1), 3), tri]).ravel())
+    labels = {t: " ".join(map(str, s)) or "-" for t, s in projected.coverage.items()}
+    n_yarns = np.array([len(projected.coverage[t]) for t in tags])
+    grid.cell_data["covering yarns"] = n_yarns
+    rng = np.random.default_rng(0)
+    palette = rng.uniform(0.25, 0.95, size=(max(projected.coverage) + 1, 3))
+    grid.cell_data["colour"] = (palette[tags] * 255).astype(np.uint8)
+    with offscreen():
+        plotter = pyvista.Plotter(off_screen=True, window_size=(1200, 1200))
+        plotter.add_mesh(grid, scalars="colour", rgb=True, show_edges=True, edge_color="black", line_width=0.5)
+        plotter.add_text(title or f"{projected.textile.name}: {len(labels)} covering sets, "
+                         f"{projected.stats.get('cells', len(tri))} cells", font_size=12)
+        plotter.view_xy()
+        plotter.screenshot(str(path))
+        plotter.close()
