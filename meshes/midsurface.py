@@ -20,7 +20,9 @@ from scipy.spatial import cKDTree
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError
-from textile_fenicsx.meshes.projected import ProjectedMesh
+from textile_fenicsx.meshes.projected import GHOST, ProjectedMesh
+
+REAL, STRIP = 1, 2
 
 
 @dataclass
@@ -35,6 +37,14 @@ class MidSurface:
     z0: dolfinx.fem.Function         # initial mid-height
     t: dolfinx.fem.Function          # thickness
     d: dolfinx.fem.Function          # in-plane unit fibre direction, DG0 vector
+    cell_kind: dolfinx.mesh.MeshTags  # 1: cell of the unit cell, 2: ghost-strip copy
+
+    @property
+    def dx(self):
+        """Measure over the yarn's cells in the unit cell (not the ghost strip)."""
+        import ufl
+
+        return ufl.Measure("dx", self.mesh, subdomain_data=self.cell_kind, subdomain_id=REAL)
 
 
 @dataclass
@@ -91,7 +101,9 @@ def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
         tan[flat] = axis / np.linalg.norm(axis)
         norm[flat] = 1.0
         d.x.array[:] = (tan / norm).ravel()
-        out.yarns.append(MidSurface(i, sub, emap, Vs, s2p, z0, t, d))
+        kind = np.where(_parent_tag(projected, emap) < GHOST, REAL, STRIP).astype(np.int32)
+        cell_kind = dolfinx.mesh.meshtags(sub, 2, np.arange(len(emap), dtype=np.int32), kind)
+        out.yarns.append(MidSurface(i, sub, emap, Vs, s2p, z0, t, d, cell_kind))
         # mean z0 per parent cell, for the stacking order
         cell_dofs = Vs.dofmap.list
         mean_z0[i] = dict(zip(emap.tolist(), z0.x.array[cell_dofs].mean(axis=1).tolist()))
@@ -101,6 +113,14 @@ def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
         dofs = [y.V.dofmap.index_map.size_global for y in out.yarns]
         log(f"midsurfaces: {len(dofs)} yarns, {sum(dofs)} dofs, {len(out.contact)} contact pairs")
     return out
+
+
+def _parent_tag(projected: ProjectedMesh, cells: np.ndarray) -> np.ndarray:
+    """Region tag of local parent cells."""
+    n = projected.mesh.topology.index_map(2)
+    tag = np.zeros(n.size_local + n.num_ghosts, dtype=np.int64)
+    tag[projected.cell_tags.indices] = projected.cell_tags.values
+    return tag[cells]
 
 
 def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
@@ -124,7 +144,8 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
 
 
 def _periodic_structure(ms: MidSurfaces) -> None:
-    """Per yarn, its global parent dofs on the right/top sides with their left/bottom images."""
+    """Per yarn, its global parent dofs on or beyond the right/top sides (the seam and the ghost
+    strip) paired with their periodic images inside the cell."""
     V, comm = ms.V, ms.V.mesh.comm
     cell = ms.projected.textile.cell
     x0, x1, y0, y1 = cell.bounds
@@ -133,23 +154,24 @@ def _periodic_structure(ms: MidSurfaces) -> None:
     n_owned = imap.size_local
     X = V.tabulate_dof_coordinates()[:n_owned, :2]
     glob = imap.local_to_global(np.arange(n_owned, dtype=np.int32))
-    on_side = (np.abs(X[:, 0] - x0) < tol) | (np.abs(X[:, 0] - x1) < tol) | \
-              (np.abs(X[:, 1] - y0) < tol) | (np.abs(X[:, 1] - y1) < tol)
-    gathered = comm.allgather((X[on_side], glob[on_side]))
-    Xb = np.vstack([g[0] for g in gathered])
-    Gb = np.concatenate([g[1] for g in gathered])
-    # every boundary dof maps to its image in [x0, x1) x [y0, y1): the representative
-    rep = Xb.copy()
-    rep[np.abs(rep[:, 0] - x1) < tol, 0] = x0
-    rep[np.abs(rep[:, 1] - y1) < tol, 1] = y0
-    tree = cKDTree(Xb)
-    dist, k = tree.query(rep)
+    image = (X[:, 0] > x1 - tol) | (X[:, 1] > y1 - tol)
+    band = 2 * ms.projected.options.seed + (X.max(axis=0) - np.array([x1, y1])).max(initial=0)
+    near = (X[:, 0] < x0 + band) | (X[:, 1] < y0 + band)
+    images = comm.allgather((X[image], glob[image]))
+    sources = comm.allgather((X[near], glob[near]))
+    Xi = np.vstack([g[0] for g in images])
+    Gi = np.concatenate([g[1] for g in images])
+    Xs = np.vstack([g[0] for g in sources])
+    Gs = np.concatenate([g[1] for g in sources])
+    target = Xi.copy()
+    target[target[:, 0] > x1 - tol, 0] -= cell.lx
+    target[target[:, 1] > y1 - tol, 1] -= cell.ly
+    dist, k = cKDTree(Xs).query(target) if len(Xs) else (np.full(len(target), np.inf), None)
     if np.any(dist > tol):
-        bad = Xb[np.argmax(dist)]
+        bad = Xi[np.argmax(dist)]
         raise GeometryError(f"the projected mesh is not periodic: the node at ({bad[0]:.6f}, {bad[1]:.6f}) "
-                            "has no partner on the opposite side")
-    moved = Gb != Gb[k]
-    pairs = np.column_stack((Gb[moved], Gb[k][moved]))  # (image, source)
+                            "has no periodic image inside the cell")
+    pairs = np.column_stack((Gi, Gs[k])) if len(Gi) else np.zeros((0, 2), np.int64)
     for y in ms.yarns:
         own = np.unique(imap.local_to_global(y.to_parent[y.to_parent < n_owned].astype(np.int32)))
         mine = np.isin(pairs[:, 0], np.concatenate(comm.allgather(own)))
@@ -170,12 +192,13 @@ def mesh_statistics(ms: MidSurfaces) -> dict:
     per_yarn = []
     for y in ms.yarns:
         one = dolfinx.fem.Constant(y.mesh, 1.0)
-        area = comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(one * ufl.dx(y.mesh))), op=MPI.SUM)
-        volume = comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(y.t * ufl.dx(y.mesh))), op=MPI.SUM)
+        area = comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(one * y.dx)), op=MPI.SUM)
+        volume = comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(y.t * y.dx)), op=MPI.SUM)
         model_area = footprint_area(textile, y.yarn)
         per_yarn.append({
             "yarn": y.yarn, "name": textile.yarns[y.yarn].name,
-            "cells": y.mesh.topology.index_map(2).size_global,
+            "cells": comm.allreduce(int(np.sum(y.cell_kind.values[:y.mesh.topology.index_map(2).size_local] == REAL)),
+                                    op=MPI.SUM),
             "dofs": y.V.dofmap.index_map.size_global,
             "footprint_area_mesh": area, "footprint_area_model": model_area,
             "thickness_integral": volume, "yarn_volume_model": volumes[y.yarn],

@@ -5,7 +5,10 @@
 2. gmsh OCC fragments the cell by all footprints into basic regions, each covered by a fixed set of
    yarns (one physical group per set), with periodic opposite sides and element size = seed.
    Nearly coincident yarn edges are merged by OCC's boolean tolerance instead of leaving slivers.
-3. `dolfinx.io.gmshio.model_to_mesh` on rank 0, distributed with shared-facet ghosts (dS forms).
+3. The triangles go to DOLFINx from rank 0 (`create_mesh` with the used nodes only, cell tags by
+   `distribute_entity_data`, as gmshio does), distributed with shared-facet ghosts (dS forms).
+4. A ghost strip (copies of the cells along the left and bottom sides, beyond the right and top
+   sides) gives the periodic seam facets their second neighbour (DESIGN.md sections 6, 11).
 """
 
 import time
@@ -15,12 +18,13 @@ import numpy as np
 from mpi4py import MPI
 
 import dolfinx
-from dolfinx.io import gmshio
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.textile import Textile
 
 # How fast element size may grow away from narrow regions (size change per unit distance).
 GROWTH = 1.0
+# Cell tags of the ghost strip: a copy of region k's cells beyond the right/top sides has tag k + GHOST.
+GHOST = 10000
 
 
 @dataclass(frozen=True)
@@ -63,10 +67,16 @@ class ProjectedMesh:
     options: MeshOptions
     stats: dict = field(default_factory=dict)
 
-    def yarn_cells(self, i: int) -> np.ndarray:
-        """Local cells (owned and ghost) covered by yarn i."""
+    def yarn_cells(self, i: int, strip: bool = True) -> np.ndarray:
+        """Local cells (owned and ghost) covered by yarn i, with its ghost-strip copies if `strip`."""
         tags = [t for t, s in self.coverage.items() if i in s]
+        if strip:
+            tags += [t + GHOST for t in tags]
         return np.sort(self.cell_tags.indices[np.isin(self.cell_tags.values, tags)])
+
+    def real_cells(self) -> np.ndarray:
+        """Local cells of the unit cell itself (not the ghost strip)."""
+        return np.sort(self.cell_tags.indices[self.cell_tags.values < GHOST])
 
 
 def check_slopes(textile: Textile, options: MeshOptions) -> list[str]:
@@ -257,10 +267,119 @@ def _gmsh_model(textile: Textile, options: MeshOptions, comm_self_name: str):
     node_index = {int(tag): k for k, tag in enumerate(gmsh.model.mesh.getNodes()[0])}
     p = xyz[[node_index[int(t)] for t in tri.ravel()]].reshape(-1, 3, 3)[:, :, :2]
     angles = _triangle_angles(p)
-    return coverage, {"gmsh_nodes": int(len(xyz)), "gmsh_triangles": int(len(tri)),
+    _add_ghost_strip(cell, coverage)
+    return _mesh_arrays(), coverage, {"nodes": int(len(np.unique(tri))), "triangles": int(len(tri)),
                       "min_angle_deg": float(angles.min()),
                       "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
                       "regions": int(len(covering)), "sliver_tolerance_mm": sliver}
+
+
+def _mesh_arrays() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangles of every physical group of the gmsh model: node coordinates (N, 2) of the used
+    nodes only, cells (M, 3) indexing them, and each cell's physical tag (M,)."""
+    import gmsh
+
+    tags, xyz, _ = gmsh.model.mesh.getNodes()
+    cells, values = [], []
+    for _, k in gmsh.model.getPhysicalGroups(2):
+        for ent in gmsh.model.getEntitiesForPhysicalGroup(2, k):
+            types, _, nodes = gmsh.model.mesh.getElements(2, ent)
+            for etype, enodes in zip(types, nodes):
+                if etype != 2:
+                    raise GeometryError(f"gmsh produced elements of type {etype}, expected triangles")
+                cells.append(enodes.reshape(-1, 3))
+                values.append(np.full(len(cells[-1]), k, dtype=np.int32))
+    cells = np.vstack(cells).astype(np.int64)
+    used, compact = np.unique(cells, return_inverse=True)
+    position = np.empty(int(tags.max()) + 1, dtype=np.int64)
+    position[tags.astype(np.int64)] = np.arange(len(tags))
+    x = xyz.reshape(-1, 3)[position[used], :2]
+    return x, compact.reshape(-1, 3), np.concatenate(values)
+
+
+def _to_dolfinx(comm, arrays, partitioner):
+    """A distributed dolfinx mesh and its cell tags from rank 0's (x, cells, tags)."""
+    import basix.ufl
+    import ufl
+
+    from dolfinx.io.utils import distribute_entity_data
+
+    domain = ufl.Mesh(basix.ufl.element("Lagrange", "triangle", 1, shape=(2,)))
+    if comm.rank == 0:
+        x, cells, values = arrays
+    else:
+        x, cells, values = np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
+    msh = dolfinx.mesh.create_mesh(comm, cells, x, domain, partitioner)
+    entities, local_values = distribute_entity_data(msh, 2, cells, values)
+    msh.topology.create_connectivity(2, 0)
+    adj = dolfinx.graph.adjacencylist(entities)
+    tags = dolfinx.mesh.meshtags_from_entities(msh, 2, adj, local_values.astype(np.int32))
+    tags.name = "covering_set"
+    return msh, tags
+
+
+def _add_ghost_strip(cell, coverage: dict) -> None:
+    """Add the ghost strip to the meshed gmsh model (DESIGN.md sections 6 and 11).
+
+    The cells with an edge on the left (bottom) side are copied, shifted by the cell's width
+    (height), beyond the right (top) side; a copy reuses the mesh's own nodes on the right (top)
+    side, so the seam facets get a neighbour on each side and the solver can put the same facet
+    terms on them as on interior facets. Copies of region k form the physical group k + GHOST.
+    """
+    import gmsh
+
+    x0, x1, y0, y1 = cell.bounds
+    tol = 1e-9 * max(cell.lx, cell.ly)
+    tags, xyz, _ = gmsh.model.mesh.getNodes()
+    xyz = xyz.reshape(-1, 3)
+    coord = dict(zip(tags.tolist(), xyz))
+    next_node = int(tags.max()) + 1
+    next_elem = int(np.concatenate(gmsh.model.mesh.getElements()[1]).max()) + 1
+    for axis, lo, hi, shift in ((0, x0, x1, (cell.lx, 0, 0)), (1, y0, y1, (0, cell.ly, 0))):
+        on_lo = np.abs(xyz[:, axis] - lo) < tol
+        on_hi = np.abs(xyz[:, axis] - hi) < tol
+        other = 1 - axis
+        hi_tags = tags[on_hi]
+        order = np.argsort(xyz[on_hi, other])
+        hi_sorted, hi_coord = hi_tags[order], xyz[on_hi, other][order]
+        lo_set = set(tags[on_lo].tolist())
+        for k in coverage:
+            copies, new_nodes, new_coords = [], {}, []
+            for ent in gmsh.model.getEntitiesForPhysicalGroup(2, k):
+                types, _, nodes = gmsh.model.mesh.getElements(2, ent)
+                for etype, enodes in zip(types, nodes):
+                    if etype != 2:
+                        continue
+                    for tri in enodes.reshape(-1, 3).tolist():
+                        if sum(n in lo_set for n in tri) < 2:
+                            continue
+                        row = []
+                        for n in tri:
+                            if n in lo_set:  # reuse the periodic partner on the opposite side
+                                j = np.searchsorted(hi_coord, coord[n][other] - tol)
+                                if j >= len(hi_coord) or abs(hi_coord[j] - coord[n][other]) > 10 * tol:
+                                    raise GeometryError("ghost strip: a boundary node has no periodic partner")
+                                row.append(int(hi_sorted[j]))
+                            else:
+                                if n not in new_nodes:
+                                    new_nodes[n] = next_node
+                                    new_coords.append(coord[n] + np.asarray(shift))
+                                    next_node += 1
+                                row.append(new_nodes[n])
+                        copies.append(row)
+            if not copies:
+                continue
+            ent = gmsh.model.addDiscreteEntity(2)
+            if new_nodes:
+                gmsh.model.mesh.addNodes(2, ent, list(new_nodes.values()), np.ravel(new_coords).tolist())
+            elems = list(range(next_elem, next_elem + len(copies)))
+            next_elem += len(copies)
+            gmsh.model.mesh.addElementsByType(ent, 2, elems, np.ravel(copies).tolist())
+            existing = [e for e in gmsh.model.getEntitiesForPhysicalGroup(2, k + GHOST)] \
+                if (2, k + GHOST) in gmsh.model.getPhysicalGroups(2) else []
+            if existing:
+                gmsh.model.removePhysicalGroups([(2, k + GHOST)])
+            gmsh.model.addPhysicalGroup(2, list(existing) + [ent], k + GHOST)
 
 
 def _on_line(curve: int, axis: int, value: float, tol: float) -> bool:
@@ -293,7 +412,7 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
     if options.seed > min(cell.lx, cell.ly):
         raise TextileError(f"mesh seed {options.seed:g} mm is larger than the cell "
                            f"({cell.lx:g} x {cell.ly:g} mm)")
-    coverage, stats, error = None, {}, None
+    arrays, coverage, stats, error = None, None, {}, None
     initialised = gmsh.isInitialized()
     if not initialised:
         gmsh.initialize(interruptible=False)
@@ -301,7 +420,7 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
     try:
         if comm.rank == 0:
             try:
-                coverage, stats = _gmsh_model(textile, options, f"projected-{textile.name}")
+                arrays, coverage, stats = _gmsh_model(textile, options, f"projected-{textile.name}")
             except (TextileError, Exception) as e:  # report on every rank, never hang
                 error = e
         error = comm.bcast(error, root=0)
@@ -311,7 +430,7 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
             raise GeometryError(f"gmsh could not mesh the projected regions: {error}") from error
         coverage = comm.bcast(coverage, root=0)
         partitioner = dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet)
-        msh, cell_tags, _ = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=2, partitioner=partitioner)
+        msh, cell_tags = _to_dolfinx(comm, arrays, partitioner)
     finally:
         if comm.rank == 0:
             gmsh.model.remove()
@@ -319,7 +438,10 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
             gmsh.finalize()
     msh.topology.create_connectivity(1, 2)
     stats = comm.bcast(stats, root=0)
-    stats.update(cells=msh.topology.index_map(2).size_global, nodes=msh.geometry.index_map().size_global,
+    n_owned = msh.topology.index_map(2).size_local
+    real = np.sum(cell_tags.values[cell_tags.indices < n_owned] < GHOST)
+    stats.update(cells=comm.allreduce(int(real), op=MPI.SUM),
+                 strip_cells=msh.topology.index_map(2).size_global - comm.allreduce(int(real), op=MPI.SUM),
                  seed_mm=options.seed, time_s=time.perf_counter() - start, warnings=warnings)
     if log is not None and comm.rank == 0:
         log(f"mesh: seed {options.seed:g} mm: {stats['cells']} cells, {stats['nodes']} nodes, "

@@ -54,7 +54,8 @@ def test_every_periodic_node_has_one_partner(satin_05):
         X[g] = x
     cell = ms.projected.textile.cell
     x0, x1, y0, y1 = cell.bounds
-    right_or_top = np.flatnonzero((np.abs(X[:, 0] - x1) < 1e-9) | (np.abs(X[:, 1] - y1) < 1e-9))
+    # the seam (right/top sides) and the ghost strip beyond them
+    right_or_top = np.flatnonzero((X[:, 0] > x1 - 1e-9) | (X[:, 1] > y1 - 1e-9))
     images = np.concatenate([p[:, 0] for p in ms.periodic])
     sources = np.concatenate([p[:, 1] for p in ms.periodic])
     pairs = {}
@@ -63,7 +64,9 @@ def test_every_periodic_node_has_one_partner(satin_05):
     shifts = X[list(pairs)] - X[list(pairs.values())]
     allowed = np.array([[cell.lx, 0], [0, cell.ly], [cell.lx, cell.ly]])
     assert np.all(np.min(np.linalg.norm(shifts[:, None] - allowed[None], axis=2), axis=1) < 1e-9)
-    # every node on the right/top sides that a yarn covers is an image (none is left out)
+    src = X[list(pairs.values())]
+    assert np.all((src[:, 0] < x1 - 1e-9) & (src[:, 1] < y1 - 1e-9))  # images point inside the cell
+    # every node on or beyond the right/top sides that a yarn covers is an image (none left out)
     covered = set()
     for y in ms.yarns:
         own = y.to_parent[y.to_parent < n].astype(np.int32)

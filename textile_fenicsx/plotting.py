@@ -124,8 +124,9 @@ def plot_projected_mesh(projected, path: Path, title: str | None = None) -> None
     tags = np.zeros(n_owned, dtype=np.int32)
     owned = projected.cell_tags.indices < n_owned
     tags[projected.cell_tags.indices[owned]] = projected.cell_tags.values[owned]
-    x = msh.geometry.x[msh.geometry.dofmap[:n_owned]]
-    parts = msh.comm.gather((x, tags), root=0)
+    real = np.isin(tags, list(projected.coverage))  # not the ghost strip
+    x = msh.geometry.x[msh.geometry.dofmap[:n_owned][real]]
+    parts = msh.comm.gather((x, tags[real]), root=0)
     if msh.comm.rank != 0:
         return
     import pyvista
