@@ -115,6 +115,29 @@ def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
     return out
 
 
+def plate_surfaces(projected: ProjectedMesh, z0, t, d) -> MidSurfaces:
+    """One plate covering the whole (periodic) cell, with z0 and t given as functions of x (3, N)
+    and d as a constant 2-vector: for verification problems with closed-form answers."""
+    msh = projected.mesh
+    V = _parent_space(msh)
+    cells = projected.yarn_cells(0)
+    sub, emap, _, _ = dolfinx.mesh.create_submesh(msh, 2, cells)
+    emap = np.asarray(emap)
+    Vs = dolfinx.fem.functionspace(sub, ("Lagrange", 2))
+    s2p = np.empty(Vs.dofmap.index_map.size_local + Vs.dofmap.index_map.num_ghosts, dtype=np.int64)
+    s2p[Vs.dofmap.list.ravel()] = V.dofmap.list[emap].ravel()
+    fz0, ft = dolfinx.fem.Function(Vs, name="z0"), dolfinx.fem.Function(Vs, name="t")
+    fz0.interpolate(z0)
+    ft.interpolate(t)
+    fd = dolfinx.fem.Function(dolfinx.fem.functionspace(sub, ("DG", 0, (2,))), name="d")
+    fd.x.array[:] = np.tile(np.asarray(d, float) / np.linalg.norm(d), len(fd.x.array) // 2)
+    kind = np.where(_parent_tag(projected, emap) < GHOST, REAL, STRIP).astype(np.int32)
+    cell_kind = dolfinx.mesh.meshtags(sub, 2, np.arange(len(emap), dtype=np.int32), kind)
+    out = MidSurfaces(projected, V, [MidSurface(0, sub, emap, Vs, s2p, fz0, ft, fd, cell_kind)])
+    _periodic_structure(out)
+    return out
+
+
 def _parent_tag(projected: ProjectedMesh, cells: np.ndarray) -> np.ndarray:
     """Region tag of local parent cells."""
     n = projected.mesh.topology.index_map(2)
@@ -133,21 +156,24 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
             order = sorted(yarns, key=lambda y: -mean_z0[y][int(c)])  # top first
             for upper, lower in zip(order[:-1], order[1:]):
                 pairs.setdefault((upper, lower), []).append(int(c))
-    ms.contact = {k: np.array(sorted(v), dtype=np.int32) for k, v in pairs.items()}
+    # the same pairs, in the same order, on every rank (some with no local cells)
+    every = sorted({k for part in proj.mesh.comm.allgather(list(pairs)) for k in part})
+    ms.contact = {k: np.array(sorted(pairs.get(k, [])), dtype=np.int32) for k in every}
     # dof pairs: the same parent dof seen from the two yarns' submeshes
     for (u, l), cells in ms.contact.items():
         parent = np.unique(ms.V.dofmap.list[cells].ravel())
         su, sl = ms.yarns[u], ms.yarns[l]
         inv_u = dict(zip(su.to_parent.tolist(), range(len(su.to_parent))))
         inv_l = dict(zip(sl.to_parent.tolist(), range(len(sl.to_parent))))
-        ms.contact_dofs[(u, l)] = np.array([[inv_u[p], inv_l[p]] for p in parent.tolist()], dtype=np.int64)
+        ms.contact_dofs[(u, l)] = np.array([[inv_u[p], inv_l[p]] for p in parent.tolist()],
+                                           dtype=np.int64).reshape(-1, 2)
 
 
 def _periodic_structure(ms: MidSurfaces) -> None:
     """Per yarn, its global parent dofs on or beyond the right/top sides (the seam and the ghost
     strip) paired with their periodic images inside the cell."""
     V, comm = ms.V, ms.V.mesh.comm
-    cell = ms.projected.textile.cell
+    cell = ms.projected.cell
     x0, x1, y0, y1 = cell.bounds
     tol = 1e-8 * max(cell.lx, cell.ly)
     imap = V.dofmap.index_map

@@ -66,6 +66,7 @@ class ProjectedMesh:
     textile: Textile
     options: MeshOptions
     stats: dict = field(default_factory=dict)
+    cell: object = None
 
     def yarn_cells(self, i: int, strip: bool = True) -> np.ndarray:
         """Local cells (owned and ghost) covered by yarn i, with its ghost-strip copies if `strip`."""
@@ -163,20 +164,20 @@ def footprint_area(textile: Textile, i: int, spacing: float = 0.02) -> float:
     return float(area)
 
 
-def _gmsh_model(textile: Textile, options: MeshOptions, comm_self_name: str):
-    """Build and mesh the gmsh model on this rank; returns (coverage, stats)."""
+def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str):
+    """Build and mesh the gmsh model on this rank from the cell and each yarn's footprint outlines
+    [(yarn, [(right, left), ...]), ...]; returns (mesh arrays, coverage, stats)."""
     import gmsh
 
     occ = gmsh.model.occ
-    cell = textile.cell
     x0, x1, y0, y1 = cell.bounds
     sliver = options.seed / 20 if options.sliver is None else options.sliver
     gmsh.model.add(comm_self_name)
     gmsh.option.setNumber("Geometry.ToleranceBoolean", sliver)
     box = occ.addRectangle(x0, y0, 0, cell.lx, cell.ly)
     pieces = []  # (yarn, surface tag) of each footprint piece inside the cell
-    for i in range(len(textile.yarns)):
-        for right, left in footprint_outlines(textile, i, options.seed / 4):
+    for i, sides in outlines:
+        for right, left in sides:
             # Each side is one smooth spline through its chain: gmsh then places nodes by the seed.
             pr = [occ.addPoint(px, py, 0) for px, py in right]
             pl = [occ.addPoint(px, py, 0) for px, py in left[::-1]]
@@ -185,7 +186,10 @@ def _gmsh_model(textile: Textile, options: MeshOptions, comm_self_name: str):
             clip = occ.addRectangle(x0, y0, 0, cell.lx, cell.ly)
             out, _ = occ.intersect([(2, surf)], [(2, clip)])
             pieces += [(i, tag) for dim, tag in out if dim == 2]
-    out, out_map = occ.fragment([(2, box)], [(2, t) for _, t in pieces])
+    if pieces:
+        out, out_map = occ.fragment([(2, box)], [(2, t) for _, t in pieces])
+    else:
+        out, out_map = [(2, box)], [[(2, box)]]
     occ.synchronize()
     covering = {tag: set() for dim, tag in out if dim == 2}
     for (yarn, _), children in zip(pieces, out_map[1:]):
@@ -404,11 +408,22 @@ def _triangle_angles(p: np.ndarray) -> np.ndarray:
 def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
                    comm: MPI.Comm = MPI.COMM_WORLD, log=print) -> ProjectedMesh:
     """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm`."""
+    return _mesh(textile, textile.cell, options, comm, log, check_slopes(textile, options))
+
+
+def plate_mesh(cell, seed: float, comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
+    """The periodic cell alone, meshed like a projected mesh (ghost strip included), as if one
+    plate (index 0) covered it: for verification problems."""
+    pm = _mesh(None, cell, MeshOptions(seed), comm, None, [])
+    pm.coverage = {t: (0,) for t in pm.coverage}
+    return pm
+
+
+def _mesh(textile, cell, options, comm, log, warnings) -> ProjectedMesh:
     import gmsh
 
     start = time.perf_counter()
-    warnings = check_slopes(textile, options)
-    cell = textile.cell
+    name = textile.name if textile is not None else "plate"
     if options.seed > min(cell.lx, cell.ly):
         raise TextileError(f"mesh seed {options.seed:g} mm is larger than the cell "
                            f"({cell.lx:g} x {cell.ly:g} mm)")
@@ -420,7 +435,9 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
     try:
         if comm.rank == 0:
             try:
-                arrays, coverage, stats = _gmsh_model(textile, options, f"projected-{textile.name}")
+                outlines = [(i, footprint_outlines(textile, i, options.seed / 4))
+                            for i in range(len(textile.yarns))] if textile is not None else []
+                arrays, coverage, stats = _gmsh_model(cell, outlines, options, f"projected-{name}")
             except (TextileError, Exception) as e:  # report on every rank, never hang
                 error = e
         error = comm.bcast(error, root=0)
@@ -447,4 +464,4 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
         log(f"mesh: seed {options.seed:g} mm: {stats['cells']} cells, {stats['nodes']} nodes, "
             f"{stats['regions']} regions, min angle {stats['min_angle_deg']:.1f} deg, "
             f"{stats['time_s']:.2f} s")
-    return ProjectedMesh(msh, cell_tags, coverage, textile, options, stats)
+    return ProjectedMesh(msh, cell_tags, coverage, textile, options, stats, cell)

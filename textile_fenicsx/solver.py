@@ -1,0 +1,490 @@
+"""Plate + tension + contact solve of all yarns at once (DESIGN.md sections 5, 6 and 9).
+
+Unknowns: one displacement field w_i (P2) per yarn on its footprint, z_i = z0_i + w_i. The energy
+
+    sum_i [ 1/2 a_b(z_i, z_i) + 1/2 sigma1 |d . grad z_i|^2 ] + sum_(u,l) 1/2 k(g) g^2
+
+is quadratic at fixed contact stiffness k, so each active-set step is one linear solve:
+- each yarn's bending + tension matrix A_i is assembled on its submesh (real cells, and facets that
+  touch a real cell: the ghost strip's copies give the periodic seam its interior-penalty terms);
+- periodicity: every dof on the seam or in the strip is a slave of its image inside the cell; a
+  sparse map R_i (yarn dofs -> unknowns, one 1 per row) applies it, K = sum R_i^T A_i R_i (PtAP);
+- contact: for each adjacent pair (upper u, lower l) the matrix M_p = k(g) u v on u's overlap cells
+  and the map T_p (unknowns -> w_u - w_l at u's overlap dofs, exact point correspondence) add
+  T_p^T M_p T_p;
+- the common vertical translation is removed by a Lagrange multiplier on the area-weighted mean of
+  all w (independent of numbering and partition);
+- MUMPS LU on the combined matrix, whose sparsity is fixed: later steps refactorise numerically only.
+The contact state is iterated until no sign of the gap changes (cap, cycle detection). The
+augmented-Lagrangian option adds Uzawa updates of a contact pressure until the penetration is below
+a tolerance that does not depend on Ec.
+"""
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import dolfinx
+import dolfinx.fem.petsc
+from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.forms import c0ip_bending, contact_mass, contact_pressure, foundation, load, tension
+from textile_fenicsx.meshes.midsurface import REAL, MidSurfaces
+from textile_fenicsx.solvers import DIRECT_LU, SolverError
+
+
+@dataclass(frozen=True)
+class PlateParameters:
+    """Stiffnesses of the yarn plates (TexGen's defaults, which the paper used).
+
+    Db1, Db2: bending stiffness along and across the fibre [N mm]; Db12: twisting stiffness [N mm]
+    (default (Db1 + Db2) / 4); sigma1: fibre tension [N/mm]; Ec, Et: contact stiffness where yarns
+    penetrate and where they are apart [N/mm^3]; alpha: interior-penalty factor [-]. Only ratios
+    matter for the geometry.
+    """
+
+    Db1: float = 1.0
+    Db2: float = 1.0
+    Db12: float | None = None
+    sigma1: float = 1.0
+    Ec: float = 1e3
+    Et: float = 1e-4
+    alpha: float = 8.0
+
+    def __post_init__(self):
+        for name in ("Db1", "Db2", "sigma1", "Et"):
+            check_positive(name, getattr(self, name), allow_zero=True)
+        check_positive("Ec", self.Ec)
+        check_positive("alpha", self.alpha)
+        if self.Db12 is None:
+            object.__setattr__(self, "Db12", (self.Db1 + self.Db2) / 4)
+        check_positive("Db12", self.Db12, allow_zero=True)
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How to iterate. method: "penalty" (the paper's) or "augmented" (Uzawa updates of a contact
+    pressure until the penetration is below penetration_tol [mm], whatever Ec: contact becomes hard,
+    with augmented_penalty [N/mm^3] as the algorithm's own penalty). max_iterations: cap on
+    active-set steps per solve; max_updates: cap on augmented-Lagrangian updates. petsc: options of
+    the linear solve."""
+
+    method: str = "penalty"
+    max_iterations: int = 60
+    max_updates: int = 30
+    penetration_tol: float = 1e-4
+    augmented_penalty: float = 1e5
+    petsc: dict = field(default_factory=lambda: dict(DIRECT_LU))
+
+    def __post_init__(self):
+        if self.method not in ("penalty", "augmented"):
+            raise TextileError(f"solver method must be 'penalty' or 'augmented', got {self.method!r}")
+        if int(self.max_iterations) < 1 or int(self.max_updates) < 1:
+            raise TextileError("max_iterations and max_updates must be >= 1")
+        check_positive("penetration_tol", self.penetration_tol)
+
+
+@dataclass
+class Solution:
+    """Displacements per yarn (Functions on each mid-surface's P2 space) and how they were found."""
+
+    w: list
+    iterations: int
+    updates: int
+    history: list
+    max_penetration: float
+    converged: bool
+    times: dict
+
+
+# --- numbering ----------------------------------------------------------------------------
+
+class _Layout:
+    """Global numbering of the unknowns: per rank, per yarn, the owned master dofs; then one
+    multiplier (owned by the last rank)."""
+
+    def __init__(self, ms: MidSurfaces):
+        V, comm = ms.V, ms.V.mesh.comm
+        imap = V.dofmap.index_map
+        self.comm = comm
+        n_owned = imap.size_local
+        images = {}
+        for y, pairs in zip(ms.yarns, ms.periodic):
+            order = np.argsort(pairs[:, 0])
+            images[y.yarn] = (pairs[order, 0], pairs[order, 1])
+        self.images = images
+        masters = []
+        for y in ms.yarns:
+            local = np.unique(y.to_parent[y.to_parent < n_owned]).astype(np.int32)
+            glob = imap.local_to_global(local)
+            keep = ~np.isin(glob, images[y.yarn][0])
+            masters.append(np.sort(glob[keep]))
+        counts = np.array([len(m) for m in masters])
+        n_local = int(counts.sum())
+        offset = comm.exscan(n_local) or 0
+        self.n = comm.allreduce(n_local, op=MPI.SUM)
+        self.multiplier = self.n
+        self.n_local = n_local + (1 if comm.rank == comm.size - 1 else 0)
+        self.start = offset
+        # parent global dof -> unknown, per yarn, known on every rank (gathered once)
+        self.lookup = []
+        pos = offset
+        mine = []
+        for m in masters:
+            mine.append((m, np.arange(pos, pos + len(m), dtype=np.int64)))
+            pos += len(m)
+        every = comm.allgather(mine)
+        for i in range(len(ms.yarns)):
+            keys = np.concatenate([part[i][0] for part in every])
+            vals = np.concatenate([part[i][1] for part in every])
+            order = np.argsort(keys)
+            self.lookup.append((keys[order], vals[order]))
+
+    def unknown(self, i: int, parent_global: np.ndarray) -> np.ndarray:
+        """Unknown index of yarn i at parent global dofs (slaves resolved to their masters)."""
+        img_keys, img_vals = self.images[i]
+        master = np.asarray(parent_global, dtype=np.int64).copy()
+        if len(img_keys):
+            k = np.minimum(np.searchsorted(img_keys, master), len(img_keys) - 1)
+            hit = img_keys[k] == master
+            master[hit] = img_vals[k[hit]]
+        keys, vals = self.lookup[i]
+        k = np.minimum(np.searchsorted(keys, master), max(len(keys) - 1, 0))
+        if len(master) and (len(keys) == 0 or np.any(keys[k] != master)):
+            raise SolverError(f"yarn {i}: a dof has no master unknown (periodic images inconsistent)")
+        return vals[k]
+
+    def matrix(self, rows_local: int, rows_global: int, entries) -> PETSc.Mat:
+        """A (rows x unknowns) AIJ matrix from (row global, column, value) triples of owned rows."""
+        r, c, v = (np.asarray(a) for a in entries)
+        A = PETSc.Mat().createAIJ(((rows_local, rows_global), (self.n_local, self.n + 1)), comm=self.comm)
+        start = self.comm.exscan(rows_local) or 0
+        local = r - start
+        order = np.lexsort((c, local))
+        local, c, v = local[order], c[order], v[order]
+        indptr = np.concatenate(([0], np.cumsum(np.bincount(local, minlength=rows_local)))).astype(PETSc.IntType)
+        A.setPreallocationCSR((indptr, c.astype(PETSc.IntType), v.astype(PETSc.ScalarType)))
+        A.assemble()
+        return A
+
+
+def _owned_rows(V: dolfinx.fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray]:
+    imap = V.dofmap.index_map
+    local = np.arange(imap.size_local, dtype=np.int32)
+    return local, imap.local_to_global(local)
+
+
+# --- the problem --------------------------------------------------------------------------
+
+class ContactProblem:
+    """Assembled operators of one textile's plates; `solve` runs the contact iteration."""
+
+    def __init__(self, ms: MidSurfaces, params: PlateParameters = PlateParameters(),
+                 options: SolverOptions = SolverOptions(), loads: dict | None = None,
+                 foundation_stiffness: float = 0.0, log=print):
+        self.ms, self.params, self.options = ms, params, options
+        self._penalty = options.augmented_penalty if options.method == "augmented" else params.Ec
+        self.comm = ms.V.mesh.comm
+        self.log = log if self.comm.rank == 0 else None
+        self.times = {}
+        t0 = time.perf_counter()
+        self.layout = _Layout(ms)
+        V_imap = ms.V.dofmap.index_map
+        self._parent_global = V_imap.local_to_global(
+            np.arange(V_imap.size_local + V_imap.num_ghosts, dtype=np.int32))
+        self._plates(loads or {}, foundation_stiffness)
+        self._mean_constraint()
+        self._contact_setup()
+        self.times["assemble"] = time.perf_counter() - t0
+
+    def _yarn_map(self, y) -> PETSc.Mat:
+        rows_local, rows_global = _owned_rows(y.V)
+        cols = self.layout.unknown(y.yarn, self._parent_global[y.to_parent[rows_local]])
+        return self.layout.matrix(len(rows_local), y.V.dofmap.index_map.size_global,
+                                  (rows_global, cols, np.ones(len(cols))))
+
+    def _plates(self, loads, kf):
+        p = self.params
+        self.R, self.K_plate, self.b_plate = [], None, None
+        b = PETSc.Vec().createMPI((self.layout.n_local, self.layout.n + 1), comm=self.comm)
+        b.set(0.0)
+        for y in self.ms.yarns:
+            msh = y.mesh
+            facets = _seam_facet_tags(y)
+            dS = ufl.Measure("dS", msh, subdomain_data=facets, subdomain_id=1)
+            c = dolfinx.fem.Constant
+            Db1, Db2, Db12 = (c(msh, float(v)) for v in (p.Db1, p.Db2, p.Db12))
+            u, v = ufl.TrialFunction(y.V), ufl.TestFunction(y.V)
+            a = c0ip_bending(u, v, y.d, Db1, Db2, Db12, c(msh, p.alpha), y.dx, dS) \
+                + tension(u, v, y.d, c(msh, float(p.sigma1)), y.dx)
+            # energies act on z0 + w: the right-hand side is -a(z0, v) (the restoring force)
+            L = -ufl.action(a, y.z0)
+            if kf:
+                a = a + foundation(u, v, c(msh, float(kf)), y.dx)
+            if y.yarn in loads:
+                L = L + load(v, c(msh, float(loads[y.yarn])), y.dx)
+            A = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(a))
+            A.assemble()
+            bi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(L))
+            bi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            R = self._yarn_map(y)
+            K = A.PtAP(R)
+            if self.K_plate is None:
+                self.K_plate = K
+            else:
+                self.K_plate.axpy(1.0, K, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+                K.destroy()
+            R.multTransposeAdd(bi, b, b)
+            self.R.append(R)
+            A.destroy()
+            bi.destroy()
+        self.b_plate = b
+
+    def _mean_constraint(self):
+        """Row and column of the multiplier: the area-weighted mean of all w is zero."""
+        m = PETSc.Vec().createMPI((self.layout.n_local, self.layout.n + 1), comm=self.comm)
+        m.set(0.0)
+        for y, R in zip(self.ms.yarns, self.R):
+            v = ufl.TestFunction(y.V)
+            mi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(v * y.dx))
+            mi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            R.multTransposeAdd(mi, m, m)
+            mi.destroy()
+        lo, hi = m.getOwnershipRange()
+        vals = m.getArray()
+        rows = np.arange(lo, hi)
+        keep = (np.abs(vals) > 0) & (rows != self.layout.multiplier)
+        all_rows = np.concatenate(self.comm.allgather(rows[keep]))
+        all_vals = np.concatenate(self.comm.allgather(vals[keep]))
+        C = PETSc.Mat().createAIJ(((self.layout.n_local, self.layout.n + 1),) * 2, comm=self.comm)
+        d_nnz = np.ones(self.layout.n_local, dtype=np.int32)
+        o_nnz = np.ones(self.layout.n_local, dtype=np.int32)
+        if self.comm.rank == self.comm.size - 1:
+            d_nnz[-1] = max(int(np.sum((all_rows >= lo) & (all_rows < hi))), 1)
+            o_nnz[-1] = max(len(all_rows) - d_nnz[-1], 1)
+        C.setPreallocationNNZ((d_nnz, o_nnz))
+        C.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        for r, val in zip(rows[keep].tolist(), vals[keep].tolist()):
+            C.setValue(r, self.layout.multiplier, val)
+        if self.comm.rank == self.comm.size - 1:
+            C.setValues([self.layout.multiplier], all_rows.astype(np.int32), all_vals)
+        C.assemble()
+        self.C_mean = C
+        m.destroy()
+
+    def _contact_setup(self):
+        """Per adjacent pair: gap function on the upper yarn, its form, and the map T_p."""
+        p = self.params
+        self.pairs = []
+        yarns = self.ms.yarns
+        for (u, l), cells in self.ms.contact.items():
+            yu, yl = yarns[u], yarns[l]
+            # the pair's cells on u's submesh
+            parent_to_sub = {int(c): k for k, c in enumerate(yu.parent_cells.tolist())}
+            sub_cells = np.array(sorted(parent_to_sub[int(c)] for c in cells), dtype=np.int32)
+            tags = dolfinx.mesh.meshtags(yu.mesh, 2, sub_cells, np.full(len(sub_cells), 1, np.int32))
+            dx = ufl.Measure("dx", yu.mesh, subdomain_data=tags, subdomain_id=1)
+            dofs = self.ms.contact_dofs[(u, l)]
+            g = dolfinx.fem.Function(yu.V, name="gap")
+            g0 = np.zeros_like(g.x.array)
+            g0[dofs[:, 0]] = (yu.z0.x.array[dofs[:, 0]] - yu.t.x.array[dofs[:, 0]] / 2) \
+                - (yl.z0.x.array[dofs[:, 1]] + yl.t.x.array[dofs[:, 1]] / 2)
+            lam = dolfinx.fem.Function(yu.V, name="pressure")
+            Ec, Et = (dolfinx.fem.Constant(yu.mesh, float(v)) for v in (self._penalty, p.Et))
+            a = dolfinx.fem.form(contact_mass(ufl.TrialFunction(yu.V), ufl.TestFunction(yu.V), g, Ec, Et, dx,
+                                              shift=lam / Ec))
+            L_lam = dolfinx.fem.form(contact_pressure(ufl.TestFunction(yu.V), g, Ec, Et, lam, dx))
+            # T_p: owned overlap rows of u: +1 at w_u, -1 at w_l (the same point)
+            n_owned = yu.V.dofmap.index_map.size_local
+            own = dofs[dofs[:, 0] < n_owned]
+            rows = yu.V.dofmap.index_map.local_to_global(own[:, 0].astype(np.int32))
+            cu = self.layout.unknown(u, self._parent_global[yu.to_parent[own[:, 0]]])
+            cl = self.layout.unknown(l, self._parent_global[yl.to_parent[own[:, 1]]])
+            T = self.layout.matrix(n_owned, yu.V.dofmap.index_map.size_global,
+                                   (np.concatenate([rows, rows]), np.concatenate([cu, cl]),
+                                    np.concatenate([np.ones(len(rows)), -np.ones(len(rows))])))
+            overlap = np.zeros(len(g.x.array), bool)
+            overlap[dofs[:, 0]] = True
+            self.pairs.append(dict(pair=(u, l), g=g, g0=g0, lam=lam, a=a, L_lam=L_lam, T=T,
+                                   overlap=overlap, owned_overlap=np.flatnonzero(overlap[:n_owned]),
+                                   M=None, K=None))
+
+    # --- iteration ------------------------------------------------------------------------
+
+    def _update_gaps(self, x: PETSc.Vec):
+        for pr in self.pairs:
+            g = pr["g"]
+            tmp = pr["T"].createVecLeft()
+            pr["T"].mult(x, tmp)
+            n = g.function_space.dofmap.index_map.size_local
+            g.x.array[:n] = pr["g0"][:n] + tmp.getArray()
+            g.x.scatter_forward()
+            tmp.destroy()
+
+    def _state(self) -> np.ndarray:
+        parts = []
+        for pr in self.pairs:
+            g = pr["g"].x.array[pr["owned_overlap"]]
+            shift = pr["lam"].x.array[pr["owned_overlap"]] / self._penalty
+            parts.append(g < shift)
+        return np.concatenate(parts) if parts else np.zeros(0, bool)
+
+    def max_penetration(self) -> float:
+        local = 0.0
+        for pr in self.pairs:
+            g = pr["g"].x.array[pr["owned_overlap"]]
+            if len(g):
+                local = max(local, float(np.max(-g)))
+        return self.comm.allreduce(local, op=MPI.MAX)
+
+    def _assemble(self) -> tuple[PETSc.Mat, PETSc.Vec]:
+        K = self.K
+        K.zeroEntries()
+        K.axpy(1.0, self.K_plate, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        K.axpy(1.0, self.C_mean, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        b = self.b_plate.copy()
+        for pr in self.pairs:
+            M = pr["M"]
+            M.zeroEntries()
+            dolfinx.fem.petsc.assemble_matrix(M, pr["a"])
+            M.assemble()
+            pr["K"] = M.PtAP(pr["T"], result=pr["K"])
+            K.axpy(1.0, pr["K"], PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            # right-hand side: -T^T M g0 + T^T (lam where active)
+            g0 = pr["M"].createVecRight()
+            arr = g0.getArray()
+            arr[:] = pr["g0"][:len(arr)]
+            Mg0 = pr["M"].createVecLeft()
+            M.mult(g0, Mg0)
+            Mg0.scale(-1.0)
+            f = dolfinx.fem.petsc.assemble_vector(pr["L_lam"])
+            f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            Mg0.axpy(1.0, f)
+            pr["T"].multTransposeAdd(Mg0, b, b)
+            for vec in (g0, Mg0, f):
+                vec.destroy()
+        return K, b
+
+    def _first_matrix(self):
+        """The combined matrix with the union sparsity, created once."""
+        K = self.K_plate.copy()
+        K.axpy(1.0, self.C_mean, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        for pr in self.pairs:
+            pr["M"] = dolfinx.fem.petsc.assemble_matrix(pr["a"])  # every entry of the form's pattern
+            pr["M"].assemble()
+            pr["K"] = pr["M"].PtAP(pr["T"])
+            K.axpy(1.0, pr["K"], PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        self.K = K
+
+    def solve(self) -> Solution:
+        opts, comm = self.options, self.comm
+        t_start = time.perf_counter()
+        self._first_matrix()
+        ksp = PETSc.KSP().create(comm)
+        prefix = f"tfx_{id(self)}_"
+        ksp.setOptionsPrefix(prefix)
+        petsc_opts = PETSc.Options()
+        for k, v in opts.petsc.items():
+            petsc_opts[prefix + k] = v
+        ksp.setFromOptions()
+        x = self.K.createVecRight()
+        x.set(0.0)
+        self._update_gaps(x)
+        history, seen = [], {}
+        state = self._state()
+        converged, it, updates = False, 0, 0
+        t_factor = 0.0
+        while True:
+            for inner in range(opts.max_iterations):
+                it += 1
+                t0 = time.perf_counter()
+                K, b = self._assemble()
+                r = K.createVecLeft()
+                K.mult(x, r)
+                r.axpy(-1.0, b)
+                res = r.norm() / max(b.norm(), 1e-300)
+                r.destroy()
+                ksp.setOperators(K)
+                t1 = time.perf_counter()
+                ksp.solve(b, x)
+                t_factor += time.perf_counter() - t1
+                reason = ksp.getConvergedReason()
+                b.destroy()
+                if reason <= 0 or not np.isfinite(x.norm()):
+                    raise SolverError(f"linear solve failed at contact iteration {it} (KSP reason {reason}); "
+                                      "a yarn without contact and Et = 0 makes the system singular")
+                self._update_gaps(x)
+                new = self._state()
+                changed = comm.allreduce(int(np.sum(new != state)), op=MPI.SUM)
+                active = comm.allreduce(int(np.sum(new)), op=MPI.SUM)
+                pen = self.max_penetration()
+                line = dict(iteration=it, active=active, changed=changed, max_penetration=pen,
+                            residual=res, time_s=time.perf_counter() - t0)
+                history.append(line)
+                if self.log:
+                    self.log(f"contact it {it:3d}: active {active:6d}, changed {changed:5d}, "
+                             f"max penetration {pen:.3e} mm, residual {res:.2e}, {line['time_s']:.2f} s")
+                key = hashlib.sha1(np.packbits(new).tobytes()).hexdigest()
+                digest = comm.bcast(key if comm.rank == 0 else None, root=0)
+                state = new
+                if changed == 0 and inner > 0:
+                    converged = True
+                    break
+                if digest in seen and seen[digest] < it - 1 and changed > 0:
+                    if self.log:
+                        self.log(f"contact: state of iteration {seen[digest]} repeats: cycling, stopping")
+                    converged = False
+                    break
+                seen[digest] = it
+            if opts.method == "penalty" or not converged:
+                break
+            pen = self.max_penetration()
+            if pen <= opts.penetration_tol or updates >= opts.max_updates:
+                converged = pen <= opts.penetration_tol
+                break
+            updates += 1
+            for pr in self.pairs:  # Uzawa: lam <- max(0, lam - Ec g)
+                lam, g = pr["lam"], pr["g"]
+                lam.x.array[:] = np.where(pr["overlap"], np.maximum(0.0, lam.x.array - self._penalty * g.x.array), 0)
+                lam.x.scatter_forward()
+            state = self._state()
+            if self.log:
+                self.log(f"augmented Lagrangian update {updates}: max penetration {pen:.3e} mm")
+        ksp.destroy()
+        w = []
+        for y, R in zip(self.ms.yarns, self.R):
+            f = dolfinx.fem.Function(y.V, name="w")
+            R.mult(x, f.x.petsc_vec)
+            f.x.scatter_forward()
+            w.append(f)
+        self.times.update(solve=time.perf_counter() - t_start, factor=t_factor)
+        self.x = x
+        return Solution(w=w, iterations=it, updates=updates, history=history,
+                        max_penetration=self.max_penetration(), converged=converged, times=dict(self.times))
+
+
+def _seam_facet_tags(y) -> dolfinx.mesh.MeshTags:
+    """Interior facets of a yarn's submesh that touch a cell of the unit cell (tag 1): the interior
+    facets of its footprint and the periodic seam facets between the cell and the ghost strip."""
+    msh = y.mesh
+    tdim = msh.topology.dim
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    f2c = msh.topology.connectivity(tdim - 1, tdim)
+    n_facets = msh.topology.index_map(tdim - 1).size_local + msh.topology.index_map(tdim - 1).num_ghosts
+    kind = np.zeros(msh.topology.index_map(tdim).size_local + msh.topology.index_map(tdim).num_ghosts, np.int32)
+    kind[y.cell_kind.indices] = y.cell_kind.values
+    offsets, links = f2c.offsets[: n_facets + 1], f2c.array
+    two = np.flatnonzero(np.diff(offsets) == 2)
+    first, second = links[offsets[two]], links[offsets[two] + 1]
+    marked = two[(kind[first] == REAL) | (kind[second] == REAL)].astype(np.int32)
+    return dolfinx.mesh.meshtags(msh, tdim - 1, marked, np.ones(len(marked), np.int32))
+
+
+def solve(ms: MidSurfaces, params: PlateParameters = PlateParameters(),
+          options: SolverOptions = SolverOptions(), log=print, **kwargs) -> Solution:
+    """Solve the textile's plates with contact; see ContactProblem."""
+    return ContactProblem(ms, params, options, log=log, **kwargs).solve()
