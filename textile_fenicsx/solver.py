@@ -24,6 +24,7 @@ import hashlib
 import time
 from dataclasses import dataclass, field
 
+import basix
 import numpy as np
 import ufl
 from mpi4py import MPI
@@ -96,9 +97,11 @@ class Solution:
     iterations: int
     updates: int
     history: list
-    max_penetration: float
+    max_penetration: float          # largest -g at overlap dofs [mm]
     converged: bool
     times: dict
+    penetration_quadrature: float = 0.0  # largest -g where the energy integrates it [mm]
+    penetration_volume: float = 0.0      # integral of max(0, -g) over the overlaps [mm^3]
 
 
 # --- numbering ----------------------------------------------------------------------------
@@ -225,8 +228,10 @@ class ContactProblem:
             L = -ufl.action(a, y.z0)
             if kf:
                 a = a + foundation(u, v, c(msh, float(kf)), y.dx)
-            if y.yarn in loads:
-                L = L + load(v, c(msh, float(loads[y.yarn])), y.dx)
+            if y.yarn in loads:  # a number [N/mm^2] or a function of the SpatialCoordinate
+                q = loads[y.yarn]
+                q = q(ufl.SpatialCoordinate(msh)) if callable(q) else c(msh, float(q))
+                L = L + load(v, q, y.dx)
             A = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(a))
             A.assemble()
             bi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(L))
@@ -309,7 +314,12 @@ class ContactProblem:
                                     np.concatenate([np.ones(len(rows)), -np.ones(len(rows))])))
             overlap = np.zeros(len(g.x.array), bool)
             overlap[dofs[:, 0]] = True
-            self.pairs.append(dict(pair=(u, l), g=g, g0=g0, lam=lam, a=a, L_lam=L_lam, T=T,
+            n_cells = yu.mesh.topology.index_map(2).size_local
+            pen_form = dolfinx.fem.form(ufl.max_value(-g, 0) * dx)
+            # -g at the contact forms' quadrature points (degree 4); compiled on every rank (collective)
+            pen_expr = dolfinx.fem.Expression(-g, basix.make_quadrature(basix.CellType.triangle, 4)[0])
+            self.pairs.append(dict(pair=(u, l), g=g, g0=g0, lam=lam, a=a, L_lam=L_lam, T=T, pen_form=pen_form, pen_expr=pen_expr,
+                                   cells=sub_cells[sub_cells < n_cells],
                                    overlap=overlap, owned_overlap=np.flatnonzero(overlap[:n_owned]),
                                    M=None, K=None))
 
@@ -334,12 +344,25 @@ class ContactProblem:
         return np.concatenate(parts) if parts else np.zeros(0, bool)
 
     def max_penetration(self) -> float:
+        """Largest -g over the overlap dofs [mm] (0 when no dof penetrates)."""
         local = 0.0
         for pr in self.pairs:
             g = pr["g"].x.array[pr["owned_overlap"]]
             if len(g):
                 local = max(local, float(np.max(-g)))
         return self.comm.allreduce(local, op=MPI.MAX)
+
+    def penetration(self) -> tuple[float, float]:
+        """What the contact energy sees: the largest -g at the quadrature points of the contact
+        forms [mm], and the penetration volume, the integral of max(0, -g) over the overlaps [mm^3]."""
+        worst, volume = 0.0, 0.0
+        for pr in self.pairs:
+            cells = pr["cells"]
+            if len(cells):
+                vals = pr["pen_expr"].eval(pr["g"].function_space.mesh, cells)
+                worst = max(worst, float(np.max(vals)))
+            volume += dolfinx.fem.assemble_scalar(pr["pen_form"])
+        return self.comm.allreduce(worst, op=MPI.MAX), self.comm.allreduce(volume, op=MPI.SUM)
 
     def _assemble(self) -> tuple[PETSc.Mat, PETSc.Vec]:
         K = self.K
@@ -429,7 +452,7 @@ class ContactProblem:
                     self.log(f"contact it {it:3d}: active {active:6d}, changed {changed:5d}, "
                              f"max penetration {pen:.3e} mm, residual {res:.2e}, {line['time_s']:.2f} s")
                 key = hashlib.sha1(np.packbits(new).tobytes()).hexdigest()
-                digest = comm.bcast(key if comm.rank == 0 else None, root=0)
+                digest = hashlib.sha1("".join(comm.allgather(key)).encode()).hexdigest()  # the global state
                 state = new
                 if changed == 0 and inner > 0:
                     converged = True
@@ -463,8 +486,10 @@ class ContactProblem:
             w.append(f)
         self.times.update(solve=time.perf_counter() - t_start, factor=t_factor)
         self.x = x
+        worst, volume = self.penetration()
         return Solution(w=w, iterations=it, updates=updates, history=history,
-                        max_penetration=self.max_penetration(), converged=converged, times=dict(self.times))
+                        max_penetration=self.max_penetration(), converged=converged, times=dict(self.times),
+                        penetration_quadrature=worst, penetration_volume=volume)
 
 
 def _seam_facet_tags(y) -> dolfinx.mesh.MeshTags:

@@ -1,0 +1,206 @@
+"""The plate + tension + contact solver against closed forms (DESIGN.md sections 5 and 6)."""
+
+import numpy as np
+import pytest
+import ufl
+from mpi4py import MPI
+
+import dolfinx
+from textile_fenicsx.errors import TextileError
+from textile_fenicsx.meshes.midsurface import mid_surfaces, plate_surfaces
+from textile_fenicsx.meshes.projected import MeshOptions, plate_mesh, projected_mesh
+from textile_fenicsx.pipeline import run
+from textile_fenicsx.sections import Ellipse
+from textile_fenicsx.solver import ContactProblem, PlateParameters, SolverOptions
+from textile_fenicsx.textile import Cell, Textile
+from textile_fenicsx.verification import convergence_rates, solve_fibre_jump_plate
+from textile_fenicsx.weaves import build
+from textile_fenicsx.yarn import ConstantSection, Yarn
+
+
+def integral(expr, dx):
+    msh = dx.ufl_domain()
+    return MPI.COMM_WORLD.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(expr * dx)), op=MPI.SUM) \
+        if msh is None else dx.ufl_domain().ufl_cargo().comm.allreduce(
+            dolfinx.fem.assemble_scalar(dolfinx.fem.form(expr * dx)), op=MPI.SUM)
+
+
+@pytest.mark.mpi
+def test_direction_field_jumping_between_cells_keeps_rate_2():
+    # Fibres along x on one half, along y on the other: closed form in verification.py.
+    sols = [solve_fibre_jump_plate(n) for n in (8, 16, 32)]
+    rates = convergence_rates([s.h for s in sols], [s.error_L2 for s in sols])
+    assert np.all(rates >= 1.8), rates
+
+
+def _crimp_case(h, L=4.0, A=0.2, Db1=1.0, sigma1=1.0, kf=5.0):
+    k = 2 * np.pi / L
+    pm = plate_mesh(Cell(L, L), h)
+    ms = plate_surfaces(pm, lambda x: A * np.cos(k * x[0]), lambda x: 0.3 + 0 * x[0], (1.0, 0.0))
+    sol = ContactProblem(ms, PlateParameters(Db1=Db1, Db2=1.0, sigma1=sigma1), foundation_stiffness=kf,
+                         log=None).solve()
+    y, w = ms.yarns[0], sol.w[0]
+    x = ufl.SpatialCoordinate(y.mesh)
+    # z = z0 + w relaxes to amplitude A kf / (Db1 k^4 + sigma1 k^2 + kf)
+    w_exact = (A * kf / (Db1 * k**4 + sigma1 * k**2 + kf) - A) * ufl.cos(k * x[0])
+    e2 = (w - w_exact) ** 2
+
+    def band(a, b):
+        return ufl.conditional(ufl.And(ufl.ge(x[0], a), ufl.le(x[0], b)), 1.0, 0.0)
+
+    comm = y.mesh.comm
+    total = np.sqrt(comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(e2 * y.dx)), op=MPI.SUM))
+    seam = np.sqrt(comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(
+        (band(0, 0.5) + band(L - 0.5, L)) * e2 * y.dx)), op=MPI.SUM))
+    middle = np.sqrt(comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(
+        band(L / 2 - 0.5, L / 2 + 0.5) * e2 * y.dx)), op=MPI.SUM))
+    return total, seam, middle
+
+
+@pytest.mark.mpi
+def test_periodic_crimp_relaxation_converges_and_the_seam_is_no_worse():
+    # z0 = A cos(2 pi x / L) under bending + tension + a soft foundation (closed form above); the
+    # error in a 1 mm band across the periodic seam matches that of a 1 mm band in the middle.
+    hs = (0.5, 0.25, 0.125)
+    results = [_crimp_case(h) for h in hs]
+    totals = [r[0] for r in results]
+    rates = convergence_rates(hs, totals)
+    assert np.all(rates >= 1.8), rates
+    seam_rates = convergence_rates(hs, [r[1] for r in results])
+    assert np.all(seam_rates >= 1.8), seam_rates
+    for _, seam, middle in results:
+        assert seam <= 1.5 * middle
+
+
+@pytest.mark.mpi
+def test_string_under_load():
+    # Tension only along x (Db1 = 0): -sigma1 w'' = F sin(k x)  =>  w = F sin(k x) / (sigma1 k^2);
+    # a little bending across the fibre (Db2 = 0.01) keeps modes w(y) out of the null space.
+    L, F, sigma1 = 4.0, 0.3, 2.0
+    k = 2 * np.pi / L
+    errors = []
+    for h in (0.5, 0.25, 0.125):
+        pm = plate_mesh(Cell(L, L), h)
+        ms = plate_surfaces(pm, lambda x: 0 * x[0], lambda x: 0.2 + 0 * x[0], (1.0, 0.0))
+        sol = ContactProblem(ms, PlateParameters(Db1=0.0, Db2=0.01, sigma1=sigma1),
+                             loads={0: lambda x: F * ufl.sin(k * x[0])}, log=None).solve()
+        y = ms.yarns[0]
+        x = ufl.SpatialCoordinate(y.mesh)
+        exact = F * ufl.sin(k * x[0]) / (sigma1 * k**2)
+        e = y.mesh.comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form((sol.w[0] - exact) ** 2 * y.dx)),
+                                  op=MPI.SUM)
+        errors.append(np.sqrt(e))
+    norm = F / (sigma1 * k**2) * L / np.sqrt(2)  # L2 norm of the exact w over the L x L cell
+    assert errors[-1] < 1e-4 * norm
+    # a second-order problem on P2 (the small Db2 only removes modes w(y)): L2 rate near 3
+    assert np.all(convergence_rates([0.5, 0.25, 0.125], errors) > 2.2)
+
+
+def crossing_strips(L=4.0, width=1.0, height=0.2):
+    """A yarn along x over a yarn along y, touching at the crossing (gap 0 at the centres)."""
+    section = ConstantSection(Ellipse(width, height))
+    reps = [[L, 0, 0], [0, L, 0]]
+    a = Yarn([[0, L / 2, height / 2], [L / 2, L / 2, height / 2], [L, L / 2, height / 2]], section, "linear",
+             repeats=reps, name="upper")
+    b = Yarn([[L / 2, 0, -height / 2], [L / 2, L / 2, -height / 2], [L / 2, L, -height / 2]], section, "linear",
+             repeats=reps, name="lower")
+    return Textile(Cell(L, L), [a, b], name="crossing")
+
+
+@pytest.fixture(scope="module")
+def crossing_mesh():
+    return mid_surfaces(projected_mesh(crossing_strips(), MeshOptions(0.25), log=None), log=None)
+
+
+def _press(ms, Ec, method="penalty", q=0.05):
+    opts = SolverOptions(method=method, penetration_tol=1e-5)
+    sol = ContactProblem(ms, PlateParameters(Ec=Ec), opts, loads={0: -q, 1: q}, log=None).solve()
+    assert sol.converged
+    return sol
+
+
+@pytest.mark.mpi
+def test_crossing_strips_pressed_together(crossing_mesh):
+    ms = crossing_mesh
+    sols = {Ec: _press(ms, Ec) for Ec in (1e2, 1e3, 1e4, 1e5)}
+    # symmetric answer: the upper yarn moves down as the lower moves up
+    s = sols[1e4]
+    up, low = (integral(w * w, y.dx) for w, y in zip(s.w, ms.yarns))
+    assert up == pytest.approx(low, rel=2e-2)
+    mean_up, mean_low = (integral(w, y.dx) for w, y in zip(s.w, ms.yarns))
+    assert mean_up < 0 < mean_low and mean_up == pytest.approx(-mean_low, rel=2e-2)
+    # penalty: the penetration volume is proportional to 1/Ec (the contact force is fixed by the
+    # load). Pointwise, the plate's contact pressure gathers at the edges of the contact zone, so the
+    # largest penetration falls more slowly; it still falls with every decade of Ec.
+    vol = {Ec: sol.penetration_volume for Ec, sol in sols.items()}
+    assert vol[1e3] * 1e3 == pytest.approx(vol[1e4] * 1e4, rel=0.1)
+    pen = {Ec: sol.max_penetration for Ec, sol in sols.items()}
+    assert pen[1e3] > 2 * pen[1e4] > 4 * pen[1e5]
+    # the displacement converges as Ec grows: the change per decade of Ec shrinks (slowly once the
+    # contact zone's edges are resolved only to the mesh: see the closing note of issue 5)
+
+    def change(a, b):
+        return np.sqrt(sum(integral((wa - wb) ** 2, y.dx) for wa, wb, y in zip(a.w, b.w, ms.yarns)))
+
+    E = sorted(sols)
+    d = [change(sols[a], sols[b]) for a, b in zip(E[:-1], E[1:])]
+    assert all(x > y for x, y in zip(d[:-1], d[1:])), d
+    assert d[-1] < d[0] / 2
+    # beyond the paper: the augmented Lagrangian drives penetration below its tolerance at low Ec
+    alm = _press(ms, 1e3, "augmented")
+    assert alm.max_penetration <= 1e-5 < pen[1e3]
+
+
+@pytest.mark.mpi
+def test_geometry_is_insensitive_to_ten_times_ec():
+    # FESTIM-style check on the 4-harness satin (yarn height 0.35 mm): from the default Ec = 1e3 to
+    # 1e4 the corrected heights move by less than 1 % of the thickness in the mean (RMS over the cell);
+    # pointwise the largest move is under 1 % once Ec >= 1e5 (near contact edges the default still
+    # lets 2 % of the thickness through: use the augmented option for hard contact).
+    t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
+    ms = mid_surfaces(projected_mesh(t, MeshOptions(1.0), log=None), log=None)
+    sols = {Ec: ContactProblem(ms, PlateParameters(Ec=Ec), log=None).solve() for Ec in (1e3, 1e4, 1e5, 1e6)}
+
+    def rms(a, b):
+        return np.sqrt(sum(integral((wa - wb) ** 2, y.dx) for wa, wb, y in zip(a.w, b.w, ms.yarns)) / t.cell.area)
+
+    def largest(a, b):
+        local = max([float(np.max(np.abs(wa.x.array - wb.x.array))) for wa, wb in zip(a.w, b.w) if len(wa.x.array)]
+                    or [0.0])
+        return MPI.COMM_WORLD.allreduce(local, op=MPI.MAX)
+
+    assert rms(sols[1e3], sols[1e4]) < 0.01 * 0.35
+    assert largest(sols[1e5], sols[1e6]) < 0.01 * 0.35
+    assert largest(sols[1e5], sols[1e6]) < largest(sols[1e4], sols[1e5]) < largest(sols[1e3], sols[1e4])
+
+
+@pytest.mark.mpi
+def test_serial_and_parallel_runs_agree():
+    t = build("plain", spacing=2.0, width=1.8, height=0.3, thickness=0.6)
+    alone = run(t, MeshOptions(1.0), comm=MPI.COMM_SELF, log=None)
+    shared = run(t, MeshOptions(1.0), comm=MPI.COMM_WORLD, log=None)
+    assert alone.solution.iterations == shared.solution.iterations
+    for wa, wb, ya, yb in zip(alone.solution.w, shared.solution.w, alone.midsurfaces.yarns, shared.midsurfaces.yarns):
+        assert integral(wb, yb.dx) == pytest.approx(integral(wa, ya.dx), rel=1e-8, abs=1e-12)
+        assert integral(wb * wb, yb.dx) == pytest.approx(integral(wa * wa, ya.dx), rel=1e-8)
+    assert shared.solution.max_penetration == pytest.approx(alone.solution.max_penetration, rel=1e-8)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("name", ["plain", "crowfoot_satin", "orthogonal"])
+def test_whole_path_converges_on_weaves(name):
+    result = run(build(name), MeshOptions(1.0), log=None)
+    s = result.summary()
+    assert result.solution.converged and s["iterations"] >= 2
+    # history: the last iteration changed no contact state
+    assert result.solution.history[-1]["changed"] == 0
+
+
+@pytest.mark.serial
+def test_bad_parameters_are_named():
+    with pytest.raises(TextileError, match="Ec must be > 0"):
+        PlateParameters(Ec=0)
+    with pytest.raises(TextileError, match="Db1 must be >= 0"):
+        PlateParameters(Db1=-1)
+    with pytest.raises(TextileError, match="method must be 'penalty' or 'augmented'"):
+        SolverOptions(method="newton")
