@@ -142,7 +142,9 @@ def load_input(text: str):
 def _solve(args) -> int:
     from mpi4py import MPI
 
+    from textile_fenicsx.correct import corrected_textile
     from textile_fenicsx.meshes.projected import MeshOptions
+    from textile_fenicsx.outputs import write_run
     from textile_fenicsx.pipeline import run
     from textile_fenicsx.solver import PlateParameters, SolverOptions
 
@@ -156,10 +158,20 @@ def _solve(args) -> int:
                             penetration_tol=args.penetration_tol)
     mesh = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep)
     result = run(textile, mesh, params, options, comm, log)
-    summary = result.summary()
-    summary["time_s"] = {"model": model_time, **summary["time_s"]}
-    if comm.rank == 0:
-        print(json.dumps(summary, indent=1))
+    t = time.perf_counter()
+    corrected = corrected_textile(textile, result.solution.w, spacing=min(args.seed / 2, 0.25), n_points=64)
+    correct_time = time.perf_counter() - t
+    times = {"model": model_time, "correct": correct_time}
+    if args.out:
+        out = write_run(result, corrected, args.out, params, options, mesh, figures=not args.no_figures,
+                        log=log, extra_times=times)
+        if comm.rank == 0:
+            print((out / "metrics.json").read_text())
+    else:
+        summary = result.summary()
+        summary["time_s"] = {**times, **summary["time_s"]}
+        if comm.rank == 0:
+            print(json.dumps(summary, indent=1))
     return 0 if result.solution.converged else 1
 
 
@@ -236,9 +248,14 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run the whole path on INPUT (a .tg3, our .toml/.json, or a named weave: plain, twill, "
         "satin, crowfoot_satin, orthogonal): projected mesh, mid-surfaces, then the contact iteration, "
         "printing one line per iteration (active contact dofs, changes, max penetration, residual, time). "
-        "Prints a JSON summary (dofs, iterations, max penetration, max |w|, seconds per stage). "
-        "Exit code 1 if the contact iteration did not converge.")
+        "Prints a JSON summary (dofs, iterations, max penetration, max |w|, seconds per stage). With --out DIR "
+        "writes DIR/corrected.tg3, DIR/corrected.json, DIR/initial.json, DIR/metrics.json (before/after), "
+        "DIR/fields/yarn_I.bp (w, z0, t, z for ParaView), DIR/surfaces_{before,after}.{vtu,stl} and figures "
+        "DIR/view_{before,after}.png, DIR/cross_sections.png; the folder appears only when complete. "
+        "Exit code 1 if the contact iteration did not converge, 2 on bad input.")
     p.add_argument("input", help="model file or named weave")
+    p.add_argument("--out", metavar="DIR", help="write the corrected model, metrics, fields, surfaces, figures")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--seed", type=float, default=0.5, help="element size [mm] (default 0.5)")
     p.add_argument("--db1", type=float, default=1.0, help="bending stiffness along the fibre [N mm] (1)")
     p.add_argument("--db2", type=float, default=1.0, help="bending stiffness across the fibre [N mm] (1)")

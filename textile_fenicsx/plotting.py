@@ -149,3 +149,36 @@ def plot_projected_mesh(projected, path: Path, title: str | None = None) -> None
         plotter.view_xy()
         plotter.screenshot(str(path))
         plotter.close()
+
+
+def plot_cross_sections(before, after, path: Path, lines: list, n: int = 800) -> None:
+    """Cross-sections of the textile before and after, along vertical cutting planes (like the
+    paper's Figs 12-13). lines: [(label, (x0, y0), (x1, y1)), ...] in-plane segments."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = plt.get_cmap("tab20")
+    fig, axes = plt.subplots(len(lines), 2, figsize=(14, 2.6 * len(lines)), squeeze=False, sharey=True)
+    for row, (label, a, b) in enumerate(lines):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        t = np.linspace(0, 1, n)
+        xy = a + np.outer(t, b - a)
+        s = t * np.linalg.norm(b - a)
+        for col, (name, textile) in enumerate((("before", before), ("after", after))):
+            ax = axes[row, col]
+            bot, top = textile.columns(xy).envelope(len(textile.yarns))
+            for i in range(len(textile.yarns)):
+                if np.all(np.isnan(bot[:, i])):
+                    continue
+                ax.fill_between(s, bot[:, i], top[:, i], where=~np.isnan(bot[:, i]), color=colours(i % 20),
+                                alpha=0.75, linewidth=0, label=textile.yarns[i].name)
+            ax.set_title(f"{label}: {name}", fontsize=10)
+            ax.set_xlabel("distance along the cut [mm]")
+            if col == 0:
+                ax.set_ylabel("z [mm]")
+            ax.set_aspect("auto")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,67 @@
+"""Correction of the textile from the yarns' displacements (DESIGN.md section 7).
+
+For each yarn, at stations along its centreline: the centreline point moves by w at its in-plane
+position, and every point of the section moves by w at its own in-plane position, so sections bend
+and twist with the mid-surface while the thickness is kept. The corrected yarn is a periodic cubic
+through the moved stations with one polygon section per station (in the new section frames), so
+every query, metric and export of the model works on it.
+"""
+
+import numpy as np
+
+from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.fields import evaluate
+from textile_fenicsx.sections import Polygon
+from textile_fenicsx.textile import Cell, Textile
+from textile_fenicsx.yarn import ConstantSection, NodeSections, Yarn
+
+
+def _wrap(xy: np.ndarray, cell: Cell) -> np.ndarray:
+    x0, _, y0, _ = cell.bounds
+    return np.column_stack((x0 + np.mod(xy[:, 0] - x0, cell.lx), y0 + np.mod(xy[:, 1] - y0, cell.ly)))
+
+
+def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32) -> Yarn:
+    """Yarn i moved by its displacement field w (a Function on its mid-surface)."""
+    yarn = textile.yarns[i]
+    s = yarn.stations(spacing)
+    pos, _, up, side = yarn.frames(s)
+    sec = yarn.section_points(s, n_points)
+    pts = pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+    cell = textile.cell
+    w_centre = evaluate(w, _wrap(pos[:, :2], cell))
+    if np.any(np.isnan(w_centre)):
+        k = int(np.flatnonzero(np.isnan(w_centre))[0])
+        raise GeometryError(f"{yarn.name}: its centreline at ({pos[k, 0]:.3f}, {pos[k, 1]:.3f}) mm lies outside "
+                            "its meshed footprint; cannot correct it")
+    w_pts = evaluate(w, _wrap(pts.reshape(-1, 2 + 1)[:, :2], cell)).reshape(len(s), n_points)
+    # section points just outside the meshed footprint (its edge is a spline through the outline)
+    # take the centre's displacement
+    w_pts = np.where(np.isnan(w_pts), w_centre[:, None], w_pts)
+    new_pos = pos + np.outer(w_centre, [0.0, 0.0, 1.0])
+    new_pts = pts.copy()
+    new_pts[..., 2] += w_pts
+    if yarn.periodic:  # the last station repeats the first, shifted by the period
+        new_pos[-1] = new_pos[0] + yarn.period
+        new_pts[-1] = new_pts[0] + yarn.period
+    ups = up  # the original up vectors: TexGen (and our frames) project them on the new tangent
+    probe = Yarn(new_pos, ConstantSection(yarn.section.sections()[0]), "cubic", yarn.periodic, yarn.repeats,
+                 ups=ups, name=yarn.name, fibres=yarn.fibres)
+    _, _, new_up, new_side = probe.frames(np.arange(len(s), dtype=float))
+    rel = new_pts - new_pos[:, None, :]
+    polys = np.stack((np.einsum("mkj,mj->mk", rel, new_side), np.einsum("mkj,mj->mk", rel, new_up)), axis=-1)
+    sections = tuple(Polygon(tuple(map(tuple, p))) for p in polys)
+    return Yarn(new_pos, NodeSections(sections), "cubic", yarn.periodic, yarn.repeats, ups=ups,
+                name=yarn.name, fibres=yarn.fibres)
+
+
+def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int = 32) -> Textile:
+    """The textile with every yarn moved by its displacement (w[i] for yarn i); collective."""
+    yarns = [corrected_yarn(textile, i, wi, spacing, n_points) for i, wi in enumerate(w)]
+    c = textile.cell
+    z = np.concatenate([y.nodes[:, 2] for y in yarns])
+    heights = [max(s.height for s in y.section.sections()) for y in yarns]
+    lo, hi = z.min() - max(heights), z.max() + max(heights)
+    z_range = None if c.z_range is None else (min(c.z_range[0], lo), max(c.z_range[1], hi))
+    return Textile(Cell(c.lx, c.ly, c.x0, c.y0, z_range), yarns, name=f"{textile.name}_corrected",
+                   resolution=textile.resolution)
