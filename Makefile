@@ -5,10 +5,11 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo test test-serial test-mpi clean
+.PHONY: help env demo demos test test-serial test-mpi clean
 
 help:
-	@echo "make demo         run the default job; outputs in $(OUT)/plate_c0ip/"
+	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
+	@echo "make demos        every demo, outputs in $(OUT)/<demo>/"
 	@echo "make test         serial test pass, then the mpi-marked tests under $(MPIRUN)"
 	@echo "make env          build (or check) the FEniCSx 0.9 environment only"
 	@echo "make clean        remove $(OUT)/"
@@ -17,7 +18,11 @@ env:
 	$(ENV) textile-fenicsx versions
 
 demo:
-	$(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/plate_c0ip python3 demos/plate_c0ip.py
+	$(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/satin_4hs python3 demos/satin_4hs.py
+
+demos:
+	for d in satin_4hs orthogonal_3d mesh_convergence parameter_study plate_c0ip; do \
+	  $(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/$$d python3 demos/$$d.py || exit 1; done
 
 test: test-serial test-mpi
 
