@@ -1,7 +1,7 @@
 # textile_fenicsx on Debian 13 (trixie): the same package list as bin/fenicsx-env's cached root.
 #   docker build -t textile-fenicsx .
 #   docker run --rm -v "$PWD/output:/work/output" textile-fenicsx
-#   docker run --rm textile-fenicsx mpirun -n 4 python3 demos/plate_c0ip.py
+#   docker run --rm textile-fenicsx mpirun -n 4 python3 demos/orthogonal_3d.py
 FROM debian:trixie
 
 ENV DEBIAN_FRONTEND=noninteractive \
@@ -20,4 +20,4 @@ COPY . /work
 RUN pip install --no-deps --no-build-isolation --break-system-packages . \
  && textile-fenicsx --version
 
-CMD ["python3", "demos/plate_c0ip.py"]
+CMD ["python3", "demos/satin_4hs.py"]
