@@ -4,7 +4,8 @@ DIR/corrected.tg3        corrected model, a plain CTextile TexGen opens
 DIR/corrected.json       the same in our format;  DIR/initial.json: the model before
 DIR/metrics.json         metrics before/after (interpenetration, thickness, crimp, yarn volume, vf),
                          dofs, iterations, time per stage, parameters, versions
-DIR/fields/yarn_I.bp     mid-surface fields of yarn I (w, z0, t, z = z0 + w) for ParaView (VTX)
+DIR/fields/yarn_I.bp     mid-surface fields of yarn I (w, z0, t, z = z0 + w, gap_below, contact) for
+                         ParaView (VTX)
 DIR/surfaces_before.vtu/.stl, DIR/surfaces_after.vtu/.stl   yarn surfaces clipped to the cell
 DIR/view_before.png, DIR/view_after.png, DIR/cross_sections.png   figures
 """
@@ -24,6 +25,7 @@ from textile_fenicsx.config import save_model
 from textile_fenicsx.export import write_surfaces
 from textile_fenicsx.files import staged_folder
 from textile_fenicsx.metrics import measure
+from textile_fenicsx.solver import gap_fields
 from textile_fenicsx.tg3 import write_tg3
 
 
@@ -36,18 +38,34 @@ def versions() -> dict:
 
 
 def cut_lines(textile) -> list:
-    """Cutting lines for the cross-section figure: along the first yarn's centre and between it
-    and its neighbour, in the yarn's in-plane direction across the cell."""
+    """Cutting lines for the cross-section figure: along the first yarn's centre, between it and its
+    neighbour, and along the most crimped yarn's centre when that is another yarn (a binder)."""
+    from textile_fenicsx.metrics import crimp
+
+    def along(i):
+        y = textile.yarns[i]
+        axis = y.period[:2] / np.linalg.norm(y.period[:2])
+        centre = np.mean(y.nodes[:-1], axis=0)[:2]
+        x0, x1, ya, yb = textile.cell.bounds
+        if abs(axis[0]) >= abs(axis[1]):
+            return (x0, centre[1]), (x1, centre[1])
+        return (centre[0], ya), (centre[0], yb)
+
     y0 = textile.yarns[0]
-    x0, x1, ya, yb = textile.cell.bounds
-    axis = y0.period[:2] / np.linalg.norm(y0.period[:2])
-    centre = np.mean(y0.nodes[:-1], axis=0)[:2]
-    if abs(axis[0]) >= abs(axis[1]):  # along x
-        others = sorted(float(np.mean(y.nodes[:-1, 1])) for y in textile.yarns
-                        if abs(y.period[0]) >= abs(y.period[1]) and y is not y0)
-        gap = (centre[1] + min([o for o in others if o > centre[1] + 1e-9] or [centre[1] + textile.cell.ly])) / 2
-        return [("along yarn 0", (x0, centre[1]), (x1, centre[1])), ("between yarns", (x0, gap), (x1, gap))]
-    return [("along yarn 0", (centre[0], ya), (centre[0], yb))]
+    a, b = along(0)
+    lines = [("along yarn 0", a, b)]
+    if abs(y0.period[0]) >= abs(y0.period[1]):
+        centre = a[1]
+        others = sorted(float(np.mean(y.nodes[:-1, 1])) for y in textile.yarns[1:]
+                        if abs(y.period[0]) >= abs(y.period[1]))
+        above = [o for o in others if o > centre + 1e-9]
+        gap = (centre + (above[0] if above else centre + textile.cell.ly)) / 2
+        lines.append(("between yarns", (a[0], gap), (b[0], gap)))
+    k = int(np.argmax(crimp(textile)))
+    if k != 0:
+        a, b = along(k)
+        lines.append((f"along {textile.yarns[k].name}", a, b))
+    return lines
 
 
 def write_run(result, corrected, out, params, options, mesh_options, figures: bool = True,
@@ -83,11 +101,12 @@ def write_run(result, corrected, out, params, options, mesh_options, figures: bo
         if comm.rank == 0:
             (tmp / "fields").mkdir()
         comm.barrier()
-        for y, w in zip(result.midsurfaces.yarns, result.solution.w):
+        gaps = gap_fields(result.problem) if result.problem is not None else [()] * len(result.solution.w)
+        for y, w, extra in zip(result.midsurfaces.yarns, result.solution.w, gaps):
             z = dolfinx.fem.Function(y.V, name="z")
             z.x.array[:] = y.z0.x.array + w.x.array
-            with dolfinx.io.VTXWriter(y.mesh.comm, tmp / "fields" / f"yarn_{y.yarn}.bp", [w, y.z0, y.t, z],
-                                      engine="BP4") as vtx:
+            with dolfinx.io.VTXWriter(y.mesh.comm, tmp / "fields" / f"yarn_{y.yarn}.bp",
+                                      [w, y.z0, y.t, z, *extra], engine="BP4") as vtx:
                 vtx.write(0.0)
         if comm.rank == 0:
             say("outputs: surfaces")

@@ -20,6 +20,7 @@ class Run:
     midsurfaces: MidSurfaces
     solution: Solution
     times: dict = field(default_factory=dict)
+    problem: ContactProblem | None = None
 
     def summary(self) -> dict:
         """JSON-ready numbers of the run (collective)."""
@@ -55,7 +56,7 @@ def run(textile: Textile, mesh: MeshOptions = MeshOptions(), params: PlateParame
     solution = problem.solve()
     times["solve"] = time.perf_counter() - t
     times["total"] = time.perf_counter() - start
-    result = Run(textile, ms, solution, times)
+    result = Run(textile, ms, solution, times, problem)
     s = result.summary()
     say(f"solve: {s['dofs']} dofs, {s['iterations']} iterations, max penetration "
         f"{s['max_penetration_nodal']:.3e} mm, max |w| {s['max_abs_w']:.4f} mm, "

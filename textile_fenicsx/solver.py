@@ -492,6 +492,22 @@ class ContactProblem:
                         penetration_quadrature=worst, penetration_volume=volume)
 
 
+def gap_fields(problem: ContactProblem) -> list:
+    """Per yarn, its gap to the yarn below it [mm] (NaN-free: 0 where nothing is below) and the
+    contact state (1 where the gap is closed), as Functions on its mid-surface, for output."""
+    out = []
+    for y in problem.ms.yarns:
+        gap = dolfinx.fem.Function(y.V, name="gap_below")
+        state = dolfinx.fem.Function(y.V, name="contact")
+        for pr in problem.pairs:
+            if pr["pair"][0] == y.yarn:
+                m = pr["overlap"]
+                gap.x.array[m] = pr["g"].x.array[m]
+                state.x.array[m] = (pr["g"].x.array[m] < 0).astype(float)
+        out.append((gap, state))
+    return out
+
+
 def _seam_facet_tags(y) -> dolfinx.mesh.MeshTags:
     """Interior facets of a yarn's submesh that touch a cell of the unit cell (tag 1): the interior
     facets of its footprint and the periodic seam facets between the cell and the ghost strip."""
