@@ -175,6 +175,15 @@ def _solve(args) -> int:
     return 0 if result.solution.converged else 1
 
 
+def _mesh_arguments(p: argparse.ArgumentParser) -> None:
+    """The projected-mesh options shared by `mesh` and `solve`."""
+    p.add_argument("--seed", type=float, default=0.5, help="element size [mm] (default 0.5)")
+    p.add_argument("--sliver", type=float, help="merge yarn edges closer than this [mm] (default seed/20)")
+    p.add_argument("--max-slope", type=float, default=10.0,
+                   help="steepest yarn slope accepted (default 10: 84 degrees)")
+    p.add_argument("--allow-steep", action="store_true", help="warn about too-steep yarns instead of stopping")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="textile-fenicsx",
@@ -234,12 +243,8 @@ def build_parser() -> argparse.ArgumentParser:
         "contact pairs, time. With --out, writes DIR/mesh.xdmf (+.h5, cell tags = covering set), "
         "DIR/mesh.json and DIR/mesh.png. Runs under mpirun.")
     p.add_argument("model", help="model file: .tg3, .toml or .json")
-    p.add_argument("--seed", type=float, default=0.5, help="element size [mm] (default 0.5)")
     p.add_argument("--out", metavar="DIR", help="write mesh.xdmf, mesh.json and mesh.png there")
-    p.add_argument("--sliver", type=float, help="merge yarn edges closer than this [mm] (default seed/20)")
-    p.add_argument("--max-slope", type=float, default=10.0,
-                   help="steepest yarn slope accepted (default 10: 84 degrees)")
-    p.add_argument("--allow-steep", action="store_true", help="warn about too-steep yarns instead of stopping")
+    _mesh_arguments(p)
     p.add_argument("--no-picture", action="store_true", help="skip the PNG")
     p.set_defaults(run=_mesh)
 
@@ -256,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help="model file or named weave")
     p.add_argument("--out", metavar="DIR", help="write the corrected model, metrics, fields, surfaces, figures")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    p.add_argument("--seed", type=float, default=0.5, help="element size [mm] (default 0.5)")
+    _mesh_arguments(p)
     p.add_argument("--db1", type=float, default=1.0, help="bending stiffness along the fibre [N mm] (1)")
     p.add_argument("--db2", type=float, default=1.0, help="bending stiffness across the fibre [N mm] (1)")
     p.add_argument("--db12", type=float, default=None, help="twisting stiffness [N mm] (default (Db1+Db2)/4)")
@@ -267,9 +272,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="penalty (the paper's) or augmented (penetration below --penetration-tol, whatever Ec)")
     p.add_argument("--penetration-tol", type=float, default=1e-4, help="augmented: penetration tolerance [mm]")
     p.add_argument("--max-iterations", type=int, default=60, help="cap on contact iterations (60)")
-    p.add_argument("--sliver", type=float, help="merge yarn edges closer than this [mm] (default seed/20)")
-    p.add_argument("--max-slope", type=float, default=10.0, help="steepest yarn slope accepted (10)")
-    p.add_argument("--allow-steep", action="store_true", help="warn about too-steep yarns instead of stopping")
     p.set_defaults(run=_solve)
     return parser
 
