@@ -199,7 +199,7 @@ def _periodic_structure(ms: MidSurfaces) -> None:
                             "has no periodic image inside the cell")
     pairs = np.column_stack((Gi, Gs[k])) if len(Gi) else np.zeros((0, 2), np.int64)
     for y in ms.yarns:
-        own = np.unique(imap.local_to_global(y.to_parent[y.to_parent < n_owned].astype(np.int32)))
+        own = np.unique(imap.local_to_global(y.to_parent.astype(np.int32)))  # owned or ghost
         mine = np.isin(pairs[:, 0], np.concatenate(comm.allgather(own)))
         ms.periodic.append(pairs[mine])
 

@@ -42,6 +42,40 @@ def test_correction_removes_interpenetration(satin_run):
 
 
 @pytest.mark.mpi
+def test_correction_of_a_manufactured_lift_and_twist(satin_run):
+    # w = a + b (y - y_c) on a weft of the satin (its centreline is the line y = y_c): the
+    # centreline rises by a exactly, each section turns by atan(b) about the centreline (points at
+    # across-fibre offset u rise by b u, times the vertical part of the new up, which is the old one
+    # up to the spline through the stations, since a uniform lift does not change the path); thickness is kept at every u. P2 holds this
+    # linear w exactly, so the check is to round-off.
+    import dolfinx
+
+    result, _, _ = satin_run
+    t = result.textile
+    i = next(k for k, y in enumerate(t.yarns) if abs(y.period[1]) < 1e-9)
+    yarn, ms = t.yarns[i], result.midsurfaces.yarns[i]
+    y_c = float(yarn.nodes[0, 1])
+    a, b = 0.05, 0.02
+    w = dolfinx.fem.Function(ms.V)
+    w.interpolate(lambda x: a + b * (x[1] - y_c))
+    from textile_fenicsx.correct import corrected_yarn
+
+    new = corrected_yarn(t, i, w, spacing=0.25, n_points=24)
+    s = yarn.stations(0.25)
+    pos, _, up, side = yarn.frames(s)
+    assert np.allclose(new.nodes, pos + [0, 0, a], atol=1e-12)
+    old = yarn.section_points(s, 24)
+    got = np.array([sec.vertices for sec in new.section.sections()])
+    _, _, new_up, _ = new.frames(np.arange(len(s), dtype=float))
+    assert np.allclose(new_up, up, atol=1e-2)  # a cubic through 0.25 mm stations vs the Bezier path
+    assert np.allclose(got[..., 0], old[..., 0], atol=1e-9)
+    y_minus_yc = old[..., 0] * side[:, None, 1]  # u runs along side = tangent x up (here -y)
+    squeeze = np.minimum(1.0, new_up[:, 2] / up[:, 2])[:, None]  # keeps the vertical thickness
+    assert np.all(squeeze > 0.99)
+    assert np.allclose(got[..., 1], old[..., 1] * squeeze + b * y_minus_yc * new_up[:, None, 2], atol=1e-9)
+
+
+@pytest.mark.mpi
 def test_outputs_complete_and_corrected_tg3_reads_back(satin_run, mpi_tmp_path):
     result, corrected, (params, options, mesh) = satin_run
     out = write_run(result, corrected, mpi_tmp_path / "run", params, options, mesh, figures=False)

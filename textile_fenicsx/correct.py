@@ -1,11 +1,19 @@
 """Correction of the textile from the yarns' displacements (DESIGN.md section 7).
 
 For each yarn, at stations along its centreline: the centreline point moves by w at its in-plane
-position, and every point of the section moves by w at its own in-plane position, so sections bend
-and twist with the mid-surface while the thickness is kept. The corrected yarn is a periodic cubic
-through the moved stations with one polygon section per station (in the new section frames), so
-every query, metric and export of the model works on it.
+position, and every point of the section moves by w at its own in-plane position (on steep stretches
+only its across-fibre offset counts), so sections bend and twist with the mid-surface. The section is then laid in the plane normal to the new path: its
+across-fibre coordinate is kept, its height coordinate gets the shift times the vertical part of the
+new up vector, and where the path steepens the section thins by new_up_z / old_up_z, which keeps
+the vertical thickness the plates kept. Where the path flattens (a binder's steep stretch smoothed)
+the section keeps its own thickness: moving the points vertically and projecting them on the new
+plane, the literal reading of DESIGN.md, collapses sections there (they lay along the old path).
+The corrected yarn is a periodic cubic through the moved stations with one polygon section per
+station, so every query, metric and export of the model works on it.
 """
+
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -27,29 +35,41 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     s = yarn.stations(spacing)
     pos, _, up, side = yarn.frames(s)
     sec = yarn.section_points(s, n_points)
-    pts = pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+    # section coordinates in the unrotated frame (side0 horizontal): (u0 across, v0 up)
+    rel = sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+    _, _, up0, side0 = (replace(yarn, angles=None) if yarn.angles is not None else yarn).frames(s)
+    u0 = np.einsum("mkj,mj->mk", rel, side0)
+    v0 = np.einsum("mkj,mj->mk", rel, up0)
     cell = textile.cell
     w_centre = evaluate(w, _wrap(pos[:, :2], cell))
     if np.any(np.isnan(w_centre)):
         k = int(np.flatnonzero(np.isnan(w_centre))[0])
         raise GeometryError(f"{yarn.name}: its centreline at ({pos[k, 0]:.3f}, {pos[k, 1]:.3f}) mm lies outside "
                             "its meshed footprint; cannot correct it")
-    w_pts = evaluate(w, _wrap(pts.reshape(-1, 2 + 1)[:, :2], cell)).reshape(len(s), n_points)
-    # section points just outside the meshed footprint (its edge is a spline through the outline)
-    # take the centre's displacement
+    # w at each section point's own in-plane position: the yarn's surface over a point moves with
+    # the plate's mid-surface there, which keeps the gaps the plates closed. On steep stretches the
+    # section's extent along the path is the path's slope, not the mid-surface's: that part of the
+    # offset fades with cos^2 of the slope (else sections shear where w varies across a column)
+    fade = up0[:, 2] ** 2
+    pts_xy = (pos[:, None, :2] + u0[..., None] * side0[:, None, :2]
+              + (v0 * fade[:, None])[..., None] * up0[:, None, :2])
+    w_pts = evaluate(w, _wrap(pts_xy.reshape(-1, 2), cell)).reshape(len(s), n_points)
+    # points just outside the meshed footprint (its edge is a spline through the outline) take
+    # the centre's displacement
     w_pts = np.where(np.isnan(w_pts), w_centre[:, None], w_pts)
     new_pos = pos + np.outer(w_centre, [0.0, 0.0, 1.0])
-    new_pts = pts.copy()
-    new_pts[..., 2] += w_pts
     if yarn.periodic:  # the last station repeats the first, shifted by the period
         new_pos[-1] = new_pos[0] + yarn.period
-        new_pts[-1] = new_pts[0] + yarn.period
-    ups = up  # the original up vectors: TexGen (and our frames) project them on the new tangent
+        w_pts[-1] = w_pts[0]
+        w_centre[-1] = w_centre[0]
+    # lay the section in the new frame (see the module docstring)
+    ups = up0 if yarn.ups is not None else None
     probe = Yarn(new_pos, ConstantSection(yarn.section.sections()[0]), "cubic", yarn.periodic, yarn.repeats,
                  ups=ups, name=yarn.name, fibres=yarn.fibres)
-    _, _, new_up, new_side = probe.frames(np.arange(len(s), dtype=float))
-    rel = new_pts - new_pos[:, None, :]
-    polys = np.stack((np.einsum("mkj,mj->mk", rel, new_side), np.einsum("mkj,mj->mk", rel, new_up)), axis=-1)
+    _, _, new_up, _ = probe.frames(np.arange(len(s), dtype=float))
+    squeeze = np.minimum(1.0, new_up[:, 2] / np.maximum(up0[:, 2], 1e-12))
+    v_new = v0 * squeeze[:, None] + (w_pts - w_centre[:, None]) * new_up[:, None, 2]
+    polys = np.stack((u0, v_new), axis=-1)
     sections = tuple(Polygon(tuple(map(tuple, p))) for p in polys)
     return Yarn(new_pos, NodeSections(sections), "cubic", yarn.periodic, yarn.repeats, ups=ups,
                 name=yarn.name, fibres=yarn.fibres)

@@ -114,16 +114,17 @@ class _Layout:
         V, comm = ms.V, ms.V.mesh.comm
         imap = V.dofmap.index_map
         self.comm = comm
-        n_owned = imap.size_local
+        parent_global = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
         images = {}
         for y, pairs in zip(ms.yarns, ms.periodic):
             order = np.argsort(pairs[:, 0])
             images[y.yarn] = (pairs[order, 0], pairs[order, 1])
         self.images = images
+        # each yarn dof is counted once, by the rank that owns it in the yarn's submesh (a parent
+        # dof's owner need not hold a cell of that yarn: ghosts are shared by facets, not vertices)
         masters = []
         for y in ms.yarns:
-            local = np.unique(y.to_parent[y.to_parent < n_owned]).astype(np.int32)
-            glob = imap.local_to_global(local)
+            glob = parent_global[y.to_parent[:y.V.dofmap.index_map.size_local]]
             keep = ~np.isin(glob, images[y.yarn][0])
             masters.append(np.sort(glob[keep]))
         counts = np.array([len(m) for m in masters])
@@ -474,7 +475,7 @@ class ContactProblem:
                 lam, g = pr["lam"], pr["g"]
                 lam.x.array[:] = np.where(pr["overlap"], np.maximum(0.0, lam.x.array - self._penalty * g.x.array), 0)
                 lam.x.scatter_forward()
-            state = self._state()
+            state, seen = self._state(), {}  # new multipliers: earlier states say nothing about cycling
             if self.log:
                 self.log(f"augmented Lagrangian update {updates}: max penetration {pen:.3e} mm")
         ksp.destroy()
