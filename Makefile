@@ -5,12 +5,15 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi clean
+.PHONY: help env demo demos test test-serial test-mpi bench clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
 	@echo "make demos        every demo, outputs in $(OUT)/<demo>/"
 	@echo "make test         serial test pass, then the mpi-marked tests under $(MPIRUN)"
+	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
+	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
+	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
 	@echo "make env          build (or check) the FEniCSx 0.9 environment only"
 	@echo "make clean        remove $(OUT)/"
 
@@ -31,6 +34,9 @@ test-serial:
 
 test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
+
+bench:
+	$(ENV) python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
 
 clean:
 	rm -rf $(OUT)

@@ -150,12 +150,17 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
     """Stacking order per multi-yarn cell and the dof pairs of vertically adjacent yarns."""
     proj = ms.projected
     by_tag = {t: s for t, s in proj.coverage.items() if len(s) >= 2}
-    pairs = {}
+    pairs, apart = {}, {}
     for tag, yarns in by_tag.items():
         for c in proj.cell_tags.indices[proj.cell_tags.values == tag]:
             order = sorted(yarns, key=lambda y: -mean_z0[y][int(c)])  # top first
             for upper, lower in zip(order[:-1], order[1:]):
                 pairs.setdefault((upper, lower), []).append(int(c))
+                key = (min(upper, lower), max(upper, lower))
+                gap = abs(mean_z0[upper][int(c)] - mean_z0[lower][int(c)])
+                if gap >= apart.get(key, (-1.0, 0))[0]:
+                    apart[key] = (gap, int(c))
+    _check_stacking(ms, apart)
     # the same pairs, in the same order, on every rank (some with no local cells)
     every = sorted({k for part in proj.mesh.comm.allgather(list(pairs)) for k in part})
     ms.contact = {k: np.array(sorted(pairs.get(k, [])), dtype=np.int32) for k in every}
@@ -167,6 +172,27 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
         inv_l = dict(zip(sl.to_parent.tolist(), range(len(sl.to_parent))))
         ms.contact_dofs[(u, l)] = np.array([[inv_u[p], inv_l[p]] for p in parent.tolist()],
                                            dtype=np.int64).reshape(-1, 2)
+
+
+def _check_stacking(ms: MidSurfaces, apart: dict) -> None:
+    """Two yarns whose mid-heights agree (to 1e-6 mm) over all their common footprint have no
+    stacking order: which is on top is not decided by the model. Name them and a place."""
+    comm = ms.projected.mesh.comm
+    msh = ms.projected.mesh
+    local = {}
+    for key, (gap, c) in apart.items():
+        local[key] = (gap, dolfinx.mesh.compute_midpoints(msh, 2, np.array([c], np.int32))[0, :2].tolist())
+    merged = {}
+    for part in comm.allgather(local):
+        for key, (gap, xy) in part.items():
+            if gap >= merged.get(key, (-1.0, None))[0]:
+                merged[key] = (gap, xy)
+    names = [y.name for y in ms.projected.textile.yarns]
+    for (a, b), (gap, xy) in sorted(merged.items()):
+        if gap < 1e-6:
+            raise GeometryError(f"{names[a]} (yarn {a}) and {names[b]} (yarn {b}) lie at the same height over "
+                                f"all their common footprint (e.g. around ({xy[0]:.3f}, {xy[1]:.3f}) mm): no "
+                                "stacking order decides which is on top; move one of them up or down")
 
 
 def _periodic_structure(ms: MidSurfaces) -> None:

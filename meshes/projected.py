@@ -35,12 +35,15 @@ class MeshOptions:
     (default seed / 20). max_slope: steepest centreline slope |dz| / |dxy| the method accepts; above
     it the through-thickness part of a yarn is narrower in plan than a tenth of its rise and cannot
     be a plate (default 10, i.e. 84 degrees). allow_steep: warn instead of stopping.
+    memory_limit: largest memory [GB] a run may need (estimated from the seed before meshing; default
+    the memory the system has available); a finer seed is refused, saying how much it would need.
     """
 
     seed: float = 0.5
     sliver: float | None = None
     max_slope: float = 10.0
     allow_steep: bool = False
+    memory_limit: float | None = None
 
     def __post_init__(self):
         if not (np.isfinite(self.seed) and self.seed > 0):
@@ -49,6 +52,45 @@ class MeshOptions:
             raise TextileError(f"sliver tolerance must be >= 0 mm, got {self.sliver!r}")
         if not self.max_slope > 0:
             raise TextileError(f"max_slope must be > 0, got {self.max_slope!r}")
+        if self.memory_limit is not None and not (np.isfinite(self.memory_limit) and self.memory_limit > 0):
+            raise TextileError(f"memory limit must be a positive size in GB, got {self.memory_limit!r}")
+
+
+# Memory of a run per unknown, measured by `make bench` (satin coupons, 3e5 dofs, 1 and 2 ranks:
+# 9.6 and 12.4 kB per dof with MUMPS' factor, gmsh's peak and the outputs), and per process.
+BYTES_PER_DOF = 12.5e3
+BYTES_PER_RANK = 0.3e9
+
+
+def available_memory() -> float:
+    """Memory the system can give [bytes] (Linux MemAvailable; inf where unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float("inf")
+
+
+def estimated_dofs(textile: Textile, seed: float) -> int:
+    """Unknowns a seed will give, from the footprint areas: about 2.3 triangles per seed^2 and 2 P2
+    dofs per triangle (within -20 % on the satin; gaps between yarns add cells this ignores)."""
+    area = sum(footprint_area(textile, i, spacing=0.1) for i in range(len(textile.yarns)))
+    return int(4.6 * area / seed**2)
+
+
+def check_memory(textile: Textile, options: "MeshOptions", ranks: int) -> None:
+    """Refuse, before meshing, a seed whose run would need more memory than the limit."""
+    dofs = estimated_dofs(textile, options.seed)
+    need = dofs * BYTES_PER_DOF + ranks * BYTES_PER_RANK
+    limit = available_memory() if options.memory_limit is None else options.memory_limit * 1e9
+    if need > limit:
+        which = "the memory limit you gave" if options.memory_limit is not None else "the memory available now"
+        raise TextileError(f"mesh seed {options.seed:g} mm would give about {dofs:.3g} unknowns and need about "
+                           f"{need / 1e9:.1f} GB, more than {which} ({limit / 1e9:.1f} GB); use a larger seed "
+                           "(or --memory-limit if you know better)")
 
 
 @dataclass
@@ -405,10 +447,23 @@ def _triangle_angles(p: np.ndarray) -> np.ndarray:
     return out
 
 
+def _release_freed_memory() -> None:
+    """Return freed heap pages to the operating system (glibc), where available."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
                    comm: MPI.Comm = MPI.COMM_WORLD, log=print) -> ProjectedMesh:
     """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm`."""
-    return _mesh(textile, textile.cell, options, comm, log, check_slopes(textile, options))
+    warnings = check_slopes(textile, options)
+    check_memory(textile, options, comm.size)
+    return _mesh(textile, textile.cell, options, comm, log, warnings)
 
 
 def plate_mesh(cell, seed: float, comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
@@ -454,6 +509,7 @@ def _mesh(textile, cell, options, comm, log, warnings) -> ProjectedMesh:
         if not initialised:
             gmsh.finalize()
     msh.topology.create_connectivity(1, 2)
+    _release_freed_memory()  # gmsh/OCC's freed heap back to the system (it is large on coupons)
     stats = comm.bcast(stats, root=0)
     n_owned = msh.topology.index_map(2).size_local
     real = np.sum(cell_tags.values[cell_tags.indices < n_owned] < GHOST)

@@ -1,12 +1,18 @@
 """The `textile-fenicsx` command line.
 
-Exit codes: 0 success; 1 a computation failed; 2 bad input or usage (the message names the culprit).
+Exit codes (README, "When things go wrong"): 0 success; 1 the run failed (the contact iteration
+did not converge, a singular or non-finite solve, a file that cannot be written, an internal
+error); 2 bad input or usage (the message names the culprit); 130 interrupted (Ctrl-C, SIGTERM).
+Under MPI an error on any rank prints its message and ends every rank (MPI_Abort), so no rank
+waits forever in a collective call.
 """
 
 import argparse
 import json
+import signal
 import sys
 import time
+import traceback
 from pathlib import Path
 
 from textile_fenicsx import __version__
@@ -76,6 +82,7 @@ def _build(args) -> int:
         textile = build(args.name, **options)
     except TypeError as e:
         raise TextileError(f"build {args.name}: {e}") from None
+    textile = _repeated(textile, args)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     start = time.perf_counter()
@@ -107,8 +114,8 @@ def _mesh(args) -> int:
 
     comm = MPI.COMM_WORLD
     log = (lambda msg: print(msg, file=sys.stderr, flush=True)) if comm.rank == 0 else None
-    textile = load_model(args.model)
-    options = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep)
+    textile = _repeated(load_model(args.model), args)
+    options = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit)
     start = time.perf_counter()
     projected = projected_mesh(textile, options, comm, log=log)
     ms = mid_surfaces(projected, log=log)
@@ -151,13 +158,23 @@ def _solve(args) -> int:
     comm = MPI.COMM_WORLD
     log = (lambda msg: print(msg, file=sys.stderr, flush=True)) if comm.rank == 0 else None
     t = time.perf_counter()
-    textile = load_input(args.input)
+    textile = _repeated(load_input(args.input), args)
     model_time = time.perf_counter() - t
     params = PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et)
     options = SolverOptions(method=args.method, max_iterations=args.max_iterations,
                             penetration_tol=args.penetration_tol)
-    mesh = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep)
+    mesh = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit)
     result = run(textile, mesh, params, options, comm, log)
+    if not result.solution.converged:
+        from textile_fenicsx.outputs import write_failed
+        from textile_fenicsx.solvers import SolverError
+
+        where = ""
+        if args.out:
+            write_failed(args.out, result.solution, params, options, mesh, comm)
+            where = f"; {args.out}/ holds only FAILED and log.json (the iteration log)"
+        raise SolverError(f"{result.solution.reason} (try --method augmented, a larger --max-iterations, "
+                          f"or a larger --ec){where}")
     t = time.perf_counter()
     corrected = corrected_textile(textile, result.solution.w, spacing=min(args.seed / 2, 0.25), n_points=64)
     correct_time = time.perf_counter() - t
@@ -172,7 +189,21 @@ def _solve(args) -> int:
         summary["time_s"] = {**times, **summary["time_s"]}
         if comm.rank == 0:
             print(json.dumps(summary, indent=1))
-    return 0 if result.solution.converged else 1
+    return 0
+
+
+def _repeated(textile, args):
+    """The model, or its nx x ny coupon when --repeat was given."""
+    if getattr(args, "repeat", None) is None:
+        return textile
+    from textile_fenicsx.coupon import tile
+
+    return tile(textile, *args.repeat)
+
+
+def _repeat_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--repeat", type=int, nargs=2, metavar=("NX", "NY"),
+                   help="solve a coupon of NX x NY unit cells as one periodic cell (yarns continued across)")
 
 
 def _mesh_arguments(p: argparse.ArgumentParser) -> None:
@@ -182,6 +213,8 @@ def _mesh_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-slope", type=float, default=10.0,
                    help="steepest yarn slope accepted (default 10: 84 degrees)")
     p.add_argument("--allow-steep", action="store_true", help="warn about too-steep yarns instead of stopping")
+    p.add_argument("--memory-limit", type=float, metavar="GB",
+                   help="refuse seeds whose run would need more memory than this (default: what is available)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -191,8 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
         "are plates that minimise bending + tension + contact energy (Lin et al. 2012), solved "
         "with FEniCSx. Lengths in mm.",
         epilog="From a checkout, run it through the project's environment: "
-        "bin/fenicsx-env textile-fenicsx COMMAND ... Exit codes: 0 success, 1 computation failed, "
-        "2 bad input or usage.",
+        "bin/fenicsx-env textile-fenicsx COMMAND ... Exit codes: 0 success, 1 the run failed (no convergence, "
+        "singular or non-finite solve, a file that cannot be written), 2 bad input or usage, 130 interrupted "
+        "(no output written).",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(title="commands", metavar="COMMAND")
@@ -232,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="any other builder option, e.g. --set weft_width=2.2 (orthogonal: warp_*, weft_*, "
                    "binder_* spacing/width/height/power, warp_layers, n_warp_stacks, n_weft_columns)")
+    _repeat_argument(p)
     p.add_argument("--no-picture", action="store_true", help="skip the PNG")
     p.set_defaults(run=_build)
 
@@ -245,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="model file: .tg3, .toml or .json")
     p.add_argument("--out", metavar="DIR", help="write mesh.xdmf, mesh.json and mesh.png there")
     _mesh_arguments(p)
+    _repeat_argument(p)
     p.add_argument("--no-picture", action="store_true", help="skip the PNG")
     p.set_defaults(run=_mesh)
 
@@ -257,11 +293,14 @@ def build_parser() -> argparse.ArgumentParser:
         "writes DIR/corrected.tg3, DIR/corrected.json, DIR/initial.json, DIR/metrics.json (before/after), "
         "DIR/fields/yarn_I.bp (w, z0, t, z for ParaView), DIR/surfaces_{before,after}.{vtu,stl} and figures "
         "DIR/view_{before,after}.png, DIR/cross_sections.png; the folder appears only when complete. "
-        "Exit code 1 if the contact iteration did not converge, 2 on bad input.")
+        "If the contact iteration does not converge, DIR holds only FAILED (the reason) and log.json "
+        "(the iteration log) and the exit code is 1. Exit codes: 0 done, 1 the run failed, 2 bad input, "
+        "130 interrupted (no output written).")
     p.add_argument("input", help="model file or named weave")
     p.add_argument("--out", metavar="DIR", help="write the corrected model, metrics, fields, surfaces, figures")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     _mesh_arguments(p)
+    _repeat_argument(p)
     p.add_argument("--db1", type=float, default=1.0, help="bending stiffness along the fibre [N mm] (1)")
     p.add_argument("--db2", type=float, default=1.0, help="bending stiffness across the fibre [N mm] (1)")
     p.add_argument("--db12", type=float, default=None, help="twisting stiffness [N mm] (default (Db1+Db2)/4)")
@@ -276,17 +315,50 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def _interrupt(signum, _frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _fail(code: int, message: str) -> int:
+    """Report an error from this rank and, under MPI, end every rank with the exit code."""
+    rank, size = 0, 1
+    if "mpi4py.MPI" in sys.modules:
+        from mpi4py import MPI
+
+        rank, size = MPI.COMM_WORLD.rank, MPI.COMM_WORLD.size
+    where = f" (rank {rank})" if size > 1 and rank else ""
+    print(f"textile-fenicsx: error{where}: {message}", file=sys.stderr, flush=True)
+    if size > 1:
+        sys.stderr.flush()
+        MPI.COMM_WORLD.Abort(code)
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "run"):
         parser.print_help()
-        return 2
+        return EXIT_INPUT
+    signal.signal(signal.SIGTERM, _interrupt)  # Ctrl-C already raises KeyboardInterrupt
+    from textile_fenicsx.solvers import SolverError
+
     try:
         return args.run(args)
     except TextileError as e:
-        print(f"textile-fenicsx: error: {e}", file=sys.stderr)
-        return 2
+        return _fail(EXIT_INPUT, str(e))
+    except SolverError as e:
+        return _fail(EXIT_FAILED, str(e))
+    except KeyboardInterrupt as e:
+        return _fail(EXIT_INTERRUPTED, f"interrupted ({e or 'SIGINT'}); no output was written")
+    except OSError as e:
+        return _fail(EXIT_FAILED, f"cannot read or write {e.filename or 'a file'}: {e.strerror or e}")
+    except Exception as e:  # a bug: say so, with the traceback, and still end every rank
+        traceback.print_exc()
+        return _fail(EXIT_FAILED, f"internal error {type(e).__name__}: {e}")
 
 
 if __name__ == "__main__":

@@ -58,7 +58,7 @@ def _keys(table, where: str, allowed: set, required: set = frozenset()):
 def _array(value, where: str, shape_tail: tuple) -> np.ndarray:
     try:
         a = np.array(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FormatError(f"{where}: expected numbers, got {value!r:.80}") from None
     if a.ndim != 1 + len(shape_tail) or a.shape[1:] != shape_tail:
         raise FormatError(f"{where}: expected a list of {shape_tail or 'numbers'}, got shape {a.shape}")
@@ -211,12 +211,17 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     _keys(c, f"{where}.cell", {"lx", "ly", "x0", "y0", "z_range"}, {"lx", "ly"})
     try:
         cell = Cell(**{k: (tuple(v) if k == "z_range" else v) for k, v in c.items()})
-    except (TextileError, TypeError) as e:
+    except (TextileError, TypeError, OverflowError) as e:
         raise FormatError(f"{where}.cell: {e}") from None
     if not isinstance(d["yarns"], list) or not d["yarns"]:
         raise FormatError(f"{where}.yarns: expected a non-empty list of yarn tables")
     yarns = [yarn_from_dict(y, f"{where}.yarns[{k}]") for k, y in enumerate(d["yarns"])]
-    return Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+    try:
+        return Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+    except FormatError:
+        raise
+    except TextileError as e:  # the yarns do not make a periodic textile in this cell
+        raise FormatError(f"{where}: {e}") from None
 
 
 def textile_to_dict(t: Textile) -> dict:

@@ -17,7 +17,7 @@ def check_positive(name: str, value, allow_zero: bool = False) -> float:
     """Return value as a float if it is finite and > 0 (>= 0 with allow_zero); else raise TextileError."""
     try:
         v = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise TextileError(f"{name} must be a number, got {value!r}") from None
     if not (v == v) or v in (float("inf"), float("-inf")):
         raise TextileError(f"{name} must be finite, got {value!r}")

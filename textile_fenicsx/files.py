@@ -23,11 +23,29 @@ def atomic_path(path):
         raise
 
 
+def _remove_stale(out: Path) -> None:
+    """Remove temporary folders of earlier runs into `out` whose process is gone (a run killed
+    mid-write, or ended by MPI_Abort from another rank, cannot clean up after itself)."""
+    import shutil
+
+    for old in out.parent.glob(f".{out.name}.partial-*"):
+        try:
+            pid = int(old.name.split("partial-")[1].split("-")[0])
+            os.kill(pid, 0)  # still running: leave it
+        except ProcessLookupError:
+            shutil.rmtree(old, ignore_errors=True)
+        except (ValueError, IndexError, PermissionError):
+            pass
+
+
 @contextlib.contextmanager
-def staged_folder(out, comm=None):
-    """Yield a temporary folder beside `out`; when the block succeeds its files move into `out`
-    (created if needed), otherwise nothing appears. Collective when given a communicator: rank 0
-    owns the folder, every rank gets its path."""
+def staged_folder(out, comm=None, remove: tuple = ()):
+    """Yield a temporary folder beside `out`; when the block succeeds on every rank its files move
+    into `out` (created if needed; same-named files and folders are replaced, others kept),
+    otherwise nothing appears. Collective when given a communicator: rank 0 owns the folder,
+    every rank gets its path. `remove`: names in `out` to delete when the new files land (left
+    over from an earlier run of another kind). On an error nothing is communicated (the failing rank may be alone):
+    rank 0 removes the folder if it failed itself; else the next run into `out` removes it."""
     import shutil
 
     out = Path(out)
@@ -35,20 +53,30 @@ def staged_folder(out, comm=None):
     tmp = None
     if rank == 0:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent)
+        _remove_stale(out)
+        tmp = tempfile.mkdtemp(prefix=f".{out.name}.partial-{os.getpid()}-", dir=out.parent)
     if comm is not None:
         tmp = comm.bcast(tmp, root=0)
     tmp = Path(tmp)
-    ok = False
     try:
         yield tmp
-        ok = True
-    finally:
-        if comm is not None:
-            ok = comm.allreduce(ok, op=__import__("mpi4py").MPI.LAND)
+    except BaseException:
         if rank == 0:
-            if ok:
-                out.mkdir(parents=True, exist_ok=True)
-                for f in sorted(tmp.iterdir()):
-                    os.replace(f, out / f.name)
             shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if comm is not None:
+        comm.barrier()  # every rank has written its part
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        for name in remove:
+            old = out / name
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old)
+            else:
+                old.unlink(missing_ok=True)
+        for f in sorted(tmp.iterdir()):
+            target = out / f.name
+            if target.is_dir() and not target.is_symlink():  # a folder of an earlier run
+                shutil.rmtree(target)
+            os.replace(f, target)
+        shutil.rmtree(tmp, ignore_errors=True)

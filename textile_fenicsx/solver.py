@@ -8,13 +8,16 @@ is quadratic at fixed contact stiffness k, so each active-set step is one linear
 - each yarn's bending + tension matrix A_i is assembled on its submesh (real cells, and facets that
   touch a real cell: the ghost strip's copies give the periodic seam its interior-penalty terms);
 - periodicity: every dof on the seam or in the strip is a slave of its image inside the cell; a
-  sparse map R_i (yarn dofs -> unknowns, one 1 per row) applies it, K = sum R_i^T A_i R_i (PtAP);
+  sparse map R_i (yarn dofs -> unknowns, one 1 per row) applies it, K = sum R_i^T A_i R_i;
 - contact: for each adjacent pair (upper u, lower l) the matrix M_p = k(g) u v on u's overlap cells
   and the map T_p (unknowns -> w_u - w_l at u's overlap dofs, exact point correspondence) add
   T_p^T M_p T_p;
-- the common vertical translation is removed by a Lagrange multiplier on the area-weighted mean of
-  all w (independent of numbering and partition);
-- MUMPS LU on the combined matrix, whose sparsity is fixed: later steps refactorise numerically only.
+- the common vertical translation is removed as a multiplier on the area-weighted mean of all w
+  would remove it, but sparsely: net load spread over the area, one unknown pinned, the solution
+  shifted to zero mean (independent of numbering and partition);
+- K is one matrix built from triplets (plates, pin, contact pairs), with indices mapped once:
+  each step only recomputes the contact values; MUMPS LDL^T (symmetric) on it, whose sparsity is
+  fixed, so later steps refactorise numerically only.
 The contact state is iterated until no sign of the gap changes (cap, cycle detection). The
 augmented-Lagrangian option adds Uzawa updates of a contact pressure until the penetration is below
 a tolerance that does not depend on Ec.
@@ -35,7 +38,7 @@ import dolfinx.fem.petsc
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.forms import c0ip_bending, contact_mass, contact_pressure, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import REAL, MidSurfaces
-from textile_fenicsx.solvers import DIRECT_LU, SolverError
+from textile_fenicsx.solvers import DIRECT_LDLT, SolverError
 
 
 @dataclass(frozen=True)
@@ -79,7 +82,7 @@ class SolverOptions:
     max_updates: int = 30
     penetration_tol: float = 1e-4
     augmented_penalty: float = 1e5
-    petsc: dict = field(default_factory=lambda: dict(DIRECT_LU))
+    petsc: dict = field(default_factory=lambda: dict(DIRECT_LDLT))
 
     def __post_init__(self):
         if self.method not in ("penalty", "augmented"):
@@ -102,6 +105,7 @@ class Solution:
     times: dict
     penetration_quadrature: float = 0.0  # largest -g where the energy integrates it [mm]
     penetration_volume: float = 0.0      # integral of max(0, -g) over the overlaps [mm^3]
+    reason: str = ""                     # why the iteration stopped (converged, or what failed)
 
 
 # --- numbering ----------------------------------------------------------------------------
@@ -176,6 +180,48 @@ class _Layout:
         return A
 
 
+class _Triplets:
+    """A matrix given as (row, column, value) triplets from any rank, repeated entries summed, with
+    a fixed pattern: the indices are routed to the rows' owners and compressed once; afterwards
+    `csr(values)` moves only values (in the order the triplets were given) and sums them."""
+
+    def __init__(self, comm: MPI.Comm, start: int, n_local: int, rows: np.ndarray, cols: np.ndarray):
+        self.comm = comm
+        starts = np.array(comm.allgather(start))
+        owner = np.searchsorted(starts, rows, side="right") - 1
+        self.order = np.argsort(owner, kind="stable")
+        self.send = np.bincount(owner, minlength=comm.size).astype(np.int64)
+        self.recv = np.array(comm.alltoall(self.send.tolist()), dtype=np.int64)
+        r = self._route(np.asarray(rows, np.int64)[self.order]) - start
+        c = self._route(np.asarray(cols, np.int64)[self.order])
+        n_cols = self.n_cols(comm, start, n_local)
+        keys, position = np.unique(r * np.int64(n_cols) + c, return_inverse=True)
+        del r, c
+        small = np.int32 if len(keys) < 2**31 else np.int64
+        self.position, self.order = position.astype(small), self.order.astype(small)
+        local_rows = keys // n_cols
+        self.indices = (keys % n_cols).astype(PETSc.IntType)
+        self.indptr = np.concatenate(([0], np.cumsum(np.bincount(local_rows, minlength=n_local)))).astype(PETSc.IntType)
+
+    @staticmethod
+    def n_cols(comm, start, n_local) -> int:
+        return comm.allreduce(n_local, op=MPI.SUM)
+
+    def _route(self, data: np.ndarray) -> np.ndarray:
+        if self.comm.size == 1:
+            return data
+        out = np.empty(int(self.recv.sum()), dtype=data.dtype)
+        sd = np.concatenate(([0], np.cumsum(self.send)[:-1]))
+        rd = np.concatenate(([0], np.cumsum(self.recv)[:-1]))
+        self.comm.Alltoallv([data, (self.send, sd)], [out, (self.recv, rd)])
+        return out
+
+    def csr(self, values: np.ndarray) -> np.ndarray:
+        """Summed values in the order of (indptr, indices)."""
+        v = self._route(np.asarray(values, np.float64)[self.order])
+        return np.bincount(self.position, weights=v, minlength=len(self.indices)).astype(PETSc.ScalarType)
+
+
 def _owned_rows(V: dolfinx.fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray]:
     imap = V.dofmap.index_map
     local = np.arange(imap.size_local, dtype=np.int32)
@@ -201,9 +247,28 @@ class ContactProblem:
         self._parent_global = V_imap.local_to_global(
             np.arange(V_imap.size_local + V_imap.num_ghosts, dtype=np.int32))
         self._plates(loads or {}, foundation_stiffness)
-        self._mean_constraint()
+        self._mean_constraint(foundation_stiffness)
         self._contact_setup()
         self.times["assemble"] = time.perf_counter() - t0
+
+    def _parents(self, y, A: PETSc.Mat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A matrix assembled on yarn y's space as (row, column, value) triplets of its owned rows,
+        rows and columns as global parent dofs. Columns may be dofs this rank does not hold (rows
+        assembled elsewhere arrive with their couplings): their parents come from their owners."""
+        indptr, cols, vals = A.getValuesCSR()
+        rows = self._parent_global[y.to_parent[np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))]]
+        imap = y.V.dofmap.index_map
+        owned = PETSc.Vec().createMPI((imap.size_local, imap.size_global), comm=self.comm)
+        owned.getArray()[:] = self._parent_global[y.to_parent[:imap.size_local]]
+        wanted, back = np.unique(cols, return_inverse=True)
+        got = PETSc.Vec().createSeq(len(wanted), comm=PETSc.COMM_SELF)
+        index = PETSc.IS().createGeneral(wanted.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+        scatter = PETSc.Scatter().create(owned, index, got, None)
+        scatter.scatter(owned, got, addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
+        parents = np.rint(got.getArray()).astype(np.int64)[back]
+        for obj in (owned, got, index, scatter):
+            obj.destroy()
+        return rows, parents, vals
 
     def _yarn_map(self, y) -> PETSc.Mat:
         rows_local, rows_global = _owned_rows(y.V)
@@ -213,7 +278,8 @@ class ContactProblem:
 
     def _plates(self, loads, kf):
         p = self.params
-        self.R, self.K_plate, self.b_plate = [], None, None
+        self.R, self.b_plate = [], None
+        coo = []  # (row unknown, column unknown, value) of every yarn's R^T A R
         b = PETSc.Vec().createMPI((self.layout.n_local, self.layout.n + 1), comm=self.comm)
         b.set(0.0)
         for y in self.ms.yarns:
@@ -238,20 +304,24 @@ class ContactProblem:
             bi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(L))
             bi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             R = self._yarn_map(y)
-            K = A.PtAP(R)
-            if self.K_plate is None:
-                self.K_plate = K
-            else:
-                self.K_plate.axpy(1.0, K, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-                K.destroy()
+            rows, cols, vals = self._parents(y, A)
+            coo.append((self.layout.unknown(y.yarn, rows), self.layout.unknown(y.yarn, cols), vals.copy()))
             R.multTransposeAdd(bi, b, b)
             self.R.append(R)
             A.destroy()
             bi.destroy()
         self.b_plate = b
+        self._coo_plate = tuple(np.concatenate(a) if coo else np.zeros(0) for a in zip(*coo)) if coo else \
+            (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
 
-    def _mean_constraint(self):
-        """Row and column of the multiplier: the area-weighted mean of all w is zero."""
+    def _mean_constraint(self, kf: float):
+        """The common vertical translation (the energy's null space when there is no foundation).
+
+        Equivalent to a multiplier on the area-weighted mean of all w, but sparse: the net load is
+        spread over the area as that multiplier's reaction would be (b -= (sum b / area) m), one
+        unknown is pinned through the multiplier's row, and the solution is shifted to zero mean
+        afterwards. (A dense multiplier row made MUMPS' analysis take over a minute at 3e5 dofs.)
+        With a foundation the system is regular and the multiplier row is the identity."""
         m = PETSc.Vec().createMPI((self.layout.n_local, self.layout.n + 1), comm=self.comm)
         m.set(0.0)
         for y, R in zip(self.ms.yarns, self.R):
@@ -260,27 +330,18 @@ class ContactProblem:
             mi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             R.multTransposeAdd(mi, m, m)
             mi.destroy()
-        lo, hi = m.getOwnershipRange()
-        vals = m.getArray()
-        rows = np.arange(lo, hi)
-        keep = (np.abs(vals) > 0) & (rows != self.layout.multiplier)
-        all_rows = np.concatenate(self.comm.allgather(rows[keep]))
-        all_vals = np.concatenate(self.comm.allgather(vals[keep]))
-        C = PETSc.Mat().createAIJ(((self.layout.n_local, self.layout.n + 1),) * 2, comm=self.comm)
-        d_nnz = np.ones(self.layout.n_local, dtype=np.int32)
-        o_nnz = np.ones(self.layout.n_local, dtype=np.int32)
-        if self.comm.rank == self.comm.size - 1:
-            d_nnz[-1] = max(int(np.sum((all_rows >= lo) & (all_rows < hi))), 1)
-            o_nnz[-1] = max(len(all_rows) - d_nnz[-1], 1)
-        C.setPreallocationNNZ((d_nnz, o_nnz))
-        C.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
-        for r, val in zip(rows[keep].tolist(), vals[keep].tolist()):
-            C.setValue(r, self.layout.multiplier, val)
-        if self.comm.rank == self.comm.size - 1:
-            C.setValues([self.layout.multiplier], all_rows.astype(np.int32), all_vals)
-        C.assemble()
-        self.C_mean = C
-        m.destroy()
+        self.area_weights, self.area = m, m.sum()
+        self.free_translation = not kf
+        mult = self.layout.multiplier
+        if self.free_translation:
+            self.b_plate.axpy(-self.b_plate.sum() / self.area, m)
+            entries = [(0, mult), (mult, 0)]  # pin unknown 0
+        else:
+            entries = [(mult, mult)]
+        if self.comm.rank != 0:  # COO entries are summed over ranks: give them once
+            entries = []
+        self._coo_mean = (np.array([e[0] for e in entries], np.int64), np.array([e[1] for e in entries], np.int64),
+                          np.ones(len(entries)))
 
     def _contact_setup(self):
         """Per adjacent pair: gap function on the upper yarn, its form, and the map T_p."""
@@ -319,10 +380,17 @@ class ContactProblem:
             pen_form = dolfinx.fem.form(ufl.max_value(-g, 0) * dx)
             # -g at the contact forms' quadrature points (degree 4); compiled on every rank (collective)
             pen_expr = dolfinx.fem.Expression(-g, basix.make_quadrature(basix.CellType.triangle, 4)[0])
+            # T^T M T in COO: M's pattern is fixed (the form's cells), so its entries (i, j) add
+            # +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j)
+            M = dolfinx.fem.petsc.assemble_matrix(a)
+            M.assemble()
+            i, j, _ = self._parents(yu, M)  # crossing yarns share the parent's dofs
+            ui, uj, li, lj = (self.layout.unknown(k, d) for k, d in ((u, i), (u, j), (l, i), (l, j)))
+            coo = (np.concatenate([ui, ui, li, li]), np.concatenate([uj, lj, uj, lj]))
             self.pairs.append(dict(pair=(u, l), g=g, g0=g0, lam=lam, a=a, L_lam=L_lam, T=T, pen_form=pen_form, pen_expr=pen_expr,
                                    cells=sub_cells[sub_cells < n_cells],
                                    overlap=overlap, owned_overlap=np.flatnonzero(overlap[:n_owned]),
-                                   M=None, K=None))
+                                   M=M, coo=coo))
 
     # --- iteration ------------------------------------------------------------------------
 
@@ -366,23 +434,21 @@ class ContactProblem:
         return self.comm.allreduce(worst, op=MPI.MAX), self.comm.allreduce(volume, op=MPI.SUM)
 
     def _assemble(self) -> tuple[PETSc.Mat, PETSc.Vec]:
-        K = self.K
-        K.zeroEntries()
-        K.axpy(1.0, self.K_plate, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        K.axpy(1.0, self.C_mean, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        """The combined matrix (values only: its COO pattern is fixed) and right-hand side."""
+        values = [self._coo_plate[2], self._coo_mean[2]]
         b = self.b_plate.copy()
         for pr in self.pairs:
             M = pr["M"]
             M.zeroEntries()
             dolfinx.fem.petsc.assemble_matrix(M, pr["a"])
             M.assemble()
-            pr["K"] = M.PtAP(pr["T"], result=pr["K"])
-            K.axpy(1.0, pr["K"], PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            m = M.getValuesCSR()[2]
+            values.append(np.concatenate([m, -m, -m, m]))
             # right-hand side: -T^T M g0 + T^T (lam where active)
-            g0 = pr["M"].createVecRight()
+            g0 = M.createVecRight()
             arr = g0.getArray()
             arr[:] = pr["g0"][:len(arr)]
-            Mg0 = pr["M"].createVecLeft()
+            Mg0 = M.createVecLeft()
             M.mult(g0, Mg0)
             Mg0.scale(-1.0)
             f = dolfinx.fem.petsc.assemble_vector(pr["L_lam"])
@@ -391,17 +457,26 @@ class ContactProblem:
             pr["T"].multTransposeAdd(Mg0, b, b)
             for vec in (g0, Mg0, f):
                 vec.destroy()
-        return K, b
+        t = self._triplets
+        self.K.setValuesCSR(t.indptr, t.indices, t.csr(np.concatenate(values)), addv=PETSc.InsertMode.INSERT_VALUES)
+        self.K.assemble()
+        return self.K, b
 
     def _first_matrix(self):
-        """The combined matrix with the union sparsity, created once."""
-        K = self.K_plate.copy()
-        K.axpy(1.0, self.C_mean, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        """The combined matrix, created once from the COO pattern of plates, pin and contact pairs
+        (repeated entries are summed; off-rank entries travel with the assembly)."""
+        rows = [self._coo_plate[0], self._coo_mean[0]] + [pr["coo"][0] for pr in self.pairs]
+        cols = [self._coo_plate[1], self._coo_mean[1]] + [pr["coo"][1] for pr in self.pairs]
+        n_local = self.layout.n_local
+        start = self.comm.exscan(n_local) or 0
+        t = self._triplets = _Triplets(self.comm, start, n_local, np.concatenate(rows), np.concatenate(cols))
+        del rows, cols  # the indices live on in the CSR pattern only
+        self._coo_plate = (None, None, self._coo_plate[2])
         for pr in self.pairs:
-            pr["M"] = dolfinx.fem.petsc.assemble_matrix(pr["a"])  # every entry of the form's pattern
-            pr["M"].assemble()
-            pr["K"] = pr["M"].PtAP(pr["T"])
-            K.axpy(1.0, pr["K"], PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            pr["coo"] = None
+        K = PETSc.Mat().createAIJ(((n_local, self.layout.n + 1),) * 2, comm=self.comm)
+        K.setPreallocationCSR((t.indptr, t.indices, np.zeros(len(t.indices), PETSc.ScalarType)))
+        K.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         self.K = K
 
     def solve(self) -> Solution:
@@ -420,7 +495,7 @@ class ContactProblem:
         self._update_gaps(x)
         history, seen = [], {}
         state = self._state()
-        converged, it, updates = False, 0, 0
+        converged, it, updates, reason = False, 0, 0, ""
         t_factor = 0.0
         while True:
             for inner in range(opts.max_iterations):
@@ -436,11 +511,17 @@ class ContactProblem:
                 t1 = time.perf_counter()
                 ksp.solve(b, x)
                 t_factor += time.perf_counter() - t1
-                reason = ksp.getConvergedReason()
+                ksp_reason = ksp.getConvergedReason()
                 b.destroy()
-                if reason <= 0 or not np.isfinite(x.norm()):
-                    raise SolverError(f"linear solve failed at contact iteration {it} (KSP reason {reason}); "
-                                      "a yarn without contact and Et = 0 makes the system singular")
+                if ksp_reason <= 0 or _null_pivots(ksp) > 0:
+                    hint = ("with Et = 0 a yarn that touches no other yarn is held by nothing: give Et > 0"
+                            if self.params.Et == 0 else "check the stiffnesses (Db1, Db2, sigma1) for zeros")
+                    raise SolverError(f"the linear system is singular at contact iteration {it} (PETSc reason "
+                                      f"{ksp_reason}, {_null_pivots(ksp)} null pivots): {hint}; iteration log: "
+                                      f"{history}")
+                if not np.isfinite(x.norm()):
+                    raise SolverError(f"the solution is not finite (NaN or Inf) at contact iteration {it}; "
+                                      f"iteration log: {history}")
                 self._update_gaps(x)
                 new = self._state()
                 changed = comm.allreduce(int(np.sum(new != state)), op=MPI.SUM)
@@ -456,19 +537,27 @@ class ContactProblem:
                 digest = hashlib.sha1("".join(comm.allgather(key)).encode()).hexdigest()  # the global state
                 state = new
                 if changed == 0 and inner > 0:
-                    converged = True
+                    converged, reason = True, "converged: no contact state changed"
                     break
                 if digest in seen and seen[digest] < it - 1 and changed > 0:
+                    reason = f"the contact states cycle: iteration {it} repeats iteration {seen[digest]}"
                     if self.log:
-                        self.log(f"contact: state of iteration {seen[digest]} repeats: cycling, stopping")
+                        self.log(f"contact: {reason}, stopping")
                     converged = False
                     break
                 seen[digest] = it
+            else:
+                converged = False
+                reason = (f"the contact iteration reached its cap of {opts.max_iterations} steps with "
+                          f"{changed} contact states still changing")
             if opts.method == "penalty" or not converged:
                 break
             pen = self.max_penetration()
             if pen <= opts.penetration_tol or updates >= opts.max_updates:
                 converged = pen <= opts.penetration_tol
+                reason = (f"converged: penetration {pen:.2e} mm <= {opts.penetration_tol:g} mm" if converged else
+                          f"{updates} augmented-Lagrangian updates (the cap) left a penetration of {pen:.2e} mm "
+                          f"> {opts.penetration_tol:g} mm")
                 break
             updates += 1
             for pr in self.pairs:  # Uzawa: lam <- max(0, lam - Ec g)
@@ -479,6 +568,13 @@ class ContactProblem:
             if self.log:
                 self.log(f"augmented Lagrangian update {updates}: max penetration {pen:.3e} mm")
         ksp.destroy()
+        if self.free_translation:  # zero area-weighted mean (the gaps do not change)
+            ones = x.duplicate()
+            ones.set(1.0)
+            ones.setValue(self.layout.multiplier, 0.0)
+            ones.assemble()
+            x.axpy(-self.area_weights.dot(x) / self.area, ones)
+            ones.destroy()
         w = []
         for y, R in zip(self.ms.yarns, self.R):
             f = dolfinx.fem.Function(y.V, name="w")
@@ -490,7 +586,16 @@ class ContactProblem:
         worst, volume = self.penetration()
         return Solution(w=w, iterations=it, updates=updates, history=history,
                         max_penetration=self.max_penetration(), converged=converged, times=dict(self.times),
+                        reason=reason,
                         penetration_quadrature=worst, penetration_volume=volume)
+
+
+def _null_pivots(ksp: PETSc.KSP) -> int:
+    """Null pivots MUMPS found (with ICNTL(24) = 1, as DIRECT_LDLT asks); 0 for other solvers."""
+    try:
+        return int(ksp.getPC().getFactorMatrix().getMumpsInfog(28))
+    except (PETSc.Error, AttributeError):
+        return 0
 
 
 def gap_fields(problem: ContactProblem) -> list:

@@ -116,7 +116,23 @@ class Textile:
                 raise TextileError(f"textile {self.name!r}: yarn {i} is not a Yarn")
             if not y.name:
                 y.name = f"yarn {i}"
+            if y.periodic:
+                self._check_closes(y)
         self._triangles = {}
+
+    def _check_closes(self, yarn: Yarn) -> None:
+        """A periodic yarn must come back onto itself after whole cells: its last master node is
+        its first moved by (a lx, b ly, 0) with whole a, b (else the pattern is not periodic)."""
+        p, c = yarn.period, self.cell
+        with np.errstate(over="ignore"):
+            a, b = p[0] / c.lx, p[1] / c.ly
+        tol = 1e-6
+        if not (np.isfinite(a) and np.isfinite(b)) or abs(a - round(a)) > tol or abs(b - round(b)) > tol or abs(p[2]) > tol * max(c.lx, c.ly) \
+                or (round(a), round(b)) == (0, 0):
+            raise TextileError(f"{yarn.name}: not periodic over the cell: its last master node is its first "
+                               f"moved by ({p[0]:g}, {p[1]:g}, {p[2]:g}) mm, which is not a whole number of "
+                               f"cells ({c.lx:g} x {c.ly:g} mm, no rise); close the path or mark the yarn "
+                               "non-periodic")
 
     # --- periodic copies --------------------------------------------------------------------
     def _translations(self, yarn: Yarn, bbox_lo: np.ndarray, bbox_hi: np.ndarray) -> list[np.ndarray]:

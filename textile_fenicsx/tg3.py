@@ -227,7 +227,13 @@ def read_tg3(path, textile: str | None = None) -> Textile:
         raise FormatError(f"{where}: the file holds no yarns (saved with OUTPUT_MINIMAL?); "
                           "save it from TexGen with OUTPUT_STANDARD or OUTPUT_FULL")
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=lambda y: int(y.get("index", 0) or 0))]
-    return Textile(cell=_domain(el, yarns, where), yarns=yarns, name=el.get("name") or path.stem)
+    cell = _domain(el, yarns, where)
+    try:
+        return Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
+    except FormatError:
+        raise
+    except TextileError as e:  # the yarns do not make a periodic textile in this domain
+        raise FormatError(f"{where}: {e}") from None
 
 
 # --- writing ----------------------------------------------------------------------------------

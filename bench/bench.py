@@ -1,0 +1,173 @@
+"""`make bench`: the pipeline stage by stage on the issue's cases, serial and on 2 ranks.
+
+Each case runs in its own process (under `mpirun -n R` for R ranks) after a warm-up process has
+filled the form cache, and reports seconds per stage, dofs, iterations and memory (peak resident
+set size per rank, summed over the ranks, and after each stage). The driver prints a table and
+writes every number to JSON (default output/bench.json).
+
+Stages: model (read the .tg3 / build and tile), mesh (gmsh + transfer), midsurfaces (sampling and
+coupling structure), assemble (plate matrices, maps), solve (contact iteration), correct (corrected
+yarns), metrics (before/after on a 200 x 200 ray grid), export (corrected.tg3, corrected.json,
+initial.json, metrics.json). end_to_end = their sum: input file to corrected model and metrics,
+no fields, surfaces or figures. extras: the fields and surfaces of a full output folder, timed apart.
+
+    python3 bench/bench.py [--quick] [--out FILE] [--only NAME ...]
+    python3 bench/bench.py --case NAME   (one case in this process; what the driver runs)
+"""
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SATIN = REPO.parent / "shared" / "reference" / "models" / "satin4.tg3"
+
+# name: (model, seed, repeats, method, ranks)
+CASES = {
+    "satin4 1.0": ("satin4", 1.0, None, "penalty", (1, 2)),
+    "satin4 0.5": ("satin4", 0.5, None, "penalty", (1, 2)),
+    "satin4 0.25": ("satin4", 0.25, None, "penalty", (1, 2)),
+    "satin4 0.125": ("satin4", 0.125, None, "penalty", (1, 2)),
+    "satin4 0.25 augmented": ("satin4", 0.25, None, "augmented", (1,)),
+    "orthogonal 0.5": ("orthogonal", 0.5, None, "penalty", (1, 2)),
+    "orthogonal 0.5 augmented": ("orthogonal", 0.5, None, "augmented", (1,)),
+    "satin4 4x4 0.25": ("satin4", 0.25, (4, 4), "penalty", (1, 2)),
+    "satin4 8x8 0.25": ("satin4", 0.25, (8, 8), "penalty", (2,)),
+}
+QUICK = ("satin4 1.0", "satin4 0.5", "satin4 0.25", "satin4 0.125", "orthogonal 0.5")
+
+
+def _rss_mb() -> float:
+    """Resident set size of this process now [MB] (Linux /proc)."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def one_case(name: str) -> dict:
+    """Run one case stage by stage in this process (collective); rank 0 returns the record."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.config import load_model
+    from textile_fenicsx.correct import corrected_textile
+    from textile_fenicsx.coupon import tile
+    from textile_fenicsx.meshes.midsurface import mid_surfaces
+    from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+    from textile_fenicsx.outputs import write_run
+    from textile_fenicsx.pipeline import Run
+    from textile_fenicsx.solver import ContactProblem, PlateParameters, SolverOptions
+    from textile_fenicsx.weaves import build
+
+    comm = MPI.COMM_WORLD
+    model, seed, repeats, method, _ = CASES[name]
+    times, memory = {}, {}
+    params, options, mesh = PlateParameters(), SolverOptions(method=method), MeshOptions(seed)
+
+    def stage(label, f):
+        comm.barrier()
+        t = time.perf_counter()
+        value = f()
+        comm.barrier()
+        times[label] = time.perf_counter() - t
+        memory[label] = comm.allreduce(_rss_mb(), op=MPI.SUM)
+        if comm.rank == 0:
+            print(f"  {name}: {label} {times[label]:.2f} s, {memory[label]:.0f} MB", file=sys.stderr, flush=True)
+        return value
+
+    def read():
+        t = load_model(SATIN) if model == "satin4" else build("orthogonal")
+        return tile(t, *repeats) if repeats else t
+
+    textile = stage("model", read)
+    projected = stage("mesh", lambda: projected_mesh(textile, mesh, comm, log=None))
+    ms = stage("midsurfaces", lambda: mid_surfaces(projected, log=None))
+    problem = stage("assemble", lambda: ContactProblem(ms, params, options, log=None))
+    solution = stage("solve", problem.solve)
+    corrected = stage("correct", lambda: corrected_textile(textile, solution.w, spacing=min(seed / 2, 0.25),
+                                                           n_points=64))
+    result = Run(textile, ms, solution, {}, problem)
+    out = Path(os.environ.get("TEXTILE_FENICSX_BENCH_TMP", "/tmp")) / f"bench_{os.getpid() if comm.rank == 0 else 0}"
+    out = Path(comm.bcast(str(out), root=0))
+    stage("export", lambda: write_run(result, corrected, out / "core", params, options, mesh, figures=False,
+                                      fields=False, surfaces=False))
+    written = json.loads((out / "core" / "metrics.json").read_text()) if comm.rank == 0 else None
+    times["metrics"] = comm.bcast(written["time_s"]["metrics"] if written else None, root=0)
+    times["export"] -= times["metrics"]
+    if repeats is None:  # coupons: the surfaces of every yarn copy take minutes, skipped
+        stage("extras", lambda: write_run(result, corrected, out / "full", params, options, mesh, figures=False))
+    else:
+        times["extras"] = float("nan")
+    if comm.rank == 0:
+        import shutil
+
+        shutil.rmtree(out, ignore_errors=True)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    core = ("model", "mesh", "midsurfaces", "assemble", "solve", "correct", "metrics", "export")
+    return {
+        "case": name, "ranks": comm.size, "seed": seed, "repeats": repeats, "method": method,
+        "dofs": int(sum(y.V.dofmap.index_map.size_global for y in ms.yarns)),
+        "cells": int(projected.stats["cells"]), "iterations": solution.iterations,
+        "updates": solution.updates, "converged": bool(solution.converged),
+        "factorisations": solution.times.get("factorisations"),
+        "time_s": {**{k: times[k] for k in core}, "end_to_end": sum(times[k] for k in core),
+                   "extras": times["extras"], "factor": solution.times.get("factor")},
+        "memory_mb": {"peak_sum": comm.allreduce(peak, op=MPI.SUM), "peak_max_rank": comm.allreduce(peak, op=MPI.MAX),
+                      "after_stage_sum": memory},
+    }
+
+
+def _run(cmd: list[str]) -> str:
+    proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, cwd=REPO)
+    if proc.returncode != 0:
+        raise SystemExit(f"bench: {' '.join(cmd)} failed with exit code {proc.returncode}")
+    return proc.stdout
+
+
+def driver(names: list[str], out: Path) -> None:
+    print("bench: warming the form cache", file=sys.stderr, flush=True)
+    for warm in ("satin4", "orthogonal"):
+        _run([sys.executable, "-c", "from textile_fenicsx.pipeline import run; from textile_fenicsx.weaves import build; "
+              "from textile_fenicsx.meshes.projected import MeshOptions; from textile_fenicsx.solver import SolverOptions; "
+              f"[run(build({'crowfoot_satin' if warm == 'satin4' else 'orthogonal'!r}), MeshOptions(1.0), "
+              "options=SolverOptions(method=m), log=None) for m in ('penalty', 'augmented')]"])
+    records = []
+    for name in names:
+        for ranks in CASES[name][4]:
+            print(f"bench: {name} on {ranks} rank(s)", file=sys.stderr, flush=True)
+            cmd = ([sys.executable] if ranks == 1 else ["mpirun", "-n", str(ranks), sys.executable])
+            text = _run(cmd + [str(Path(__file__).resolve()), "--case", name])
+            records.append(json.loads(text.strip().splitlines()[-1]))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"machine": os.uname().nodename, "cpus": os.cpu_count(), "records": records}, indent=1))
+    cols = ("model", "mesh", "midsurfaces", "assemble", "solve", "correct", "metrics", "export", "end_to_end", "extras")
+    head = f"{'case':26s} {'ranks':>5s} {'dofs':>8s} {'it':>4s} " + " ".join(f"{c[:8]:>8s}" for c in cols) + f" {'peak MB':>8s}"
+    print(head)
+    for r in records:
+        print(f"{r['case']:26s} {r['ranks']:5d} {r['dofs']:8d} {r['iterations']:4d} "
+              + " ".join(f"{r['time_s'][c]:8.2f}" for c in cols) + f" {r['memory_mb']['peak_sum']:8.0f}")
+    print(f"(seconds; peak MB: resident set summed over ranks; written to {out})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--case", help="run one case here and print its record as JSON")
+    parser.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
+    parser.add_argument("--only", nargs="+", choices=list(CASES), metavar="NAME", help="these cases")
+    parser.add_argument("--out", type=Path, default=REPO / "output" / "bench.json")
+    args = parser.parse_args()
+    if args.case:
+        from mpi4py import MPI
+
+        record = one_case(args.case)
+        if MPI.COMM_WORLD.rank == 0:
+            print(json.dumps(record), flush=True)
+        return
+    driver(args.only or (list(QUICK) if args.quick else list(CASES)), args.out)
+
+
+if __name__ == "__main__":
+    main()
