@@ -56,7 +56,7 @@ def one_case(name: str) -> dict:
     from textile_fenicsx.correct import corrected_textile
     from textile_fenicsx.coupon import tile
     from textile_fenicsx.meshes.midsurface import mid_surfaces
-    from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+    from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
     from textile_fenicsx.outputs import write_run
     from textile_fenicsx.pipeline import Run
     from textile_fenicsx.solver import ContactProblem, PlateParameters, SolverOptions
@@ -84,8 +84,8 @@ def one_case(name: str) -> dict:
 
     textile = stage("model", read)
     projected = stage("mesh", lambda: projected_mesh(textile, mesh, comm, log=None))
-    ms = stage("midsurfaces", lambda: mid_surfaces(projected, log=None))
-    problem = stage("assemble", lambda: ContactProblem(ms, params, options, log=None))
+    ms = stage("midsurfaces", lambda: (mid_surfaces(projected, log=None), release_freed_memory())[0])
+    problem = stage("assemble", lambda: (ContactProblem(ms, params, options, log=None), release_freed_memory())[0])
     solution = stage("solve", problem.solve)
     corrected = stage("correct", lambda: corrected_textile(textile, solution.w, spacing=min(seed / 2, 0.25),
                                                            n_points=64))

@@ -164,14 +164,21 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
     # the same pairs, in the same order, on every rank (some with no local cells)
     every = sorted({k for part in proj.mesh.comm.allgather(list(pairs)) for k in part})
     ms.contact = {k: np.array(sorted(pairs.get(k, [])), dtype=np.int32) for k in every}
-    # dof pairs: the same parent dof seen from the two yarns' submeshes
+    # dof pairs: the same parent dof seen from the two yarns' submeshes (sorted lookups, built
+    # once per yarn: a dict per pair cost memory in proportion to pairs x yarn size on coupons)
+    sorted_parent = [np.argsort(y.to_parent) for y in ms.yarns]
+
+    def local_dof(y, parent):
+        order = sorted_parent[y]
+        k = np.searchsorted(ms.yarns[y].to_parent, parent, sorter=order)
+        return order[np.minimum(k, len(order) - 1)]
+
     for (u, l), cells in ms.contact.items():
         parent = np.unique(ms.V.dofmap.list[cells].ravel())
-        su, sl = ms.yarns[u], ms.yarns[l]
-        inv_u = dict(zip(su.to_parent.tolist(), range(len(su.to_parent))))
-        inv_l = dict(zip(sl.to_parent.tolist(), range(len(sl.to_parent))))
-        ms.contact_dofs[(u, l)] = np.array([[inv_u[p], inv_l[p]] for p in parent.tolist()],
-                                           dtype=np.int64).reshape(-1, 2)
+        du, dl = local_dof(u, parent), local_dof(l, parent)
+        if len(parent) and (np.any(ms.yarns[u].to_parent[du] != parent) or np.any(ms.yarns[l].to_parent[dl] != parent)):
+            raise GeometryError(f"contact of yarns {u} and {l}: a shared node is missing from one of them")
+        ms.contact_dofs[(u, l)] = np.column_stack((du, dl)).astype(np.int64).reshape(-1, 2)
 
 
 def _check_stacking(ms: MidSurfaces, apart: dict) -> None:

@@ -447,7 +447,7 @@ def _triangle_angles(p: np.ndarray) -> np.ndarray:
     return out
 
 
-def _release_freed_memory() -> None:
+def release_freed_memory() -> None:
     """Return freed heap pages to the operating system (glibc), where available."""
     import ctypes
     import ctypes.util
@@ -509,7 +509,7 @@ def _mesh(textile, cell, options, comm, log, warnings) -> ProjectedMesh:
         if not initialised:
             gmsh.finalize()
     msh.topology.create_connectivity(1, 2)
-    _release_freed_memory()  # gmsh/OCC's freed heap back to the system (it is large on coupons)
+    release_freed_memory()  # gmsh/OCC's freed heap back to the system (it is large on coupons)
     stats = comm.bcast(stats, root=0)
     n_owned = msh.topology.index_map(2).size_local
     real = np.sum(cell_tags.values[cell_tags.indices < n_owned] < GHOST)

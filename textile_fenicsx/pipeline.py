@@ -7,7 +7,7 @@ import numpy as np
 from mpi4py import MPI
 
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
 from textile_fenicsx.solver import ContactProblem, PlateParameters, Solution, SolverOptions
 from textile_fenicsx.textile import Textile
 
@@ -48,9 +48,11 @@ def run(textile: Textile, mesh: MeshOptions = MeshOptions(), params: PlateParame
     times["mesh"] = time.perf_counter() - t
     t = time.perf_counter()
     ms = mid_surfaces(projected, log=say)
+    release_freed_memory()
     times["midsurfaces"] = time.perf_counter() - t
     t = time.perf_counter()
     problem = ContactProblem(ms, params, options, log=say)
+    release_freed_memory()
     times["assemble"] = time.perf_counter() - t
     t = time.perf_counter()
     solution = problem.solve()

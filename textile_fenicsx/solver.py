@@ -182,44 +182,55 @@ class _Layout:
 
 class _Triplets:
     """A matrix given as (row, column, value) triplets from any rank, repeated entries summed, with
-    a fixed pattern: the indices are routed to the rows' owners and compressed once; afterwards
-    `csr(values)` moves only values (in the order the triplets were given) and sums them."""
+    a fixed pattern: the indices are routed to the rows' owners and compressed once. The first
+    n_fixed triplets have constant values (`set_fixed`, once); afterwards `csr(values)` moves only
+    the values of the others (in the order given) and adds them to the constant part."""
 
-    def __init__(self, comm: MPI.Comm, start: int, n_local: int, rows: np.ndarray, cols: np.ndarray):
+    def __init__(self, comm: MPI.Comm, start: int, n_local: int, rows: np.ndarray, cols: np.ndarray,
+                 n_fixed: int):
         self.comm = comm
         starts = np.array(comm.allgather(start))
         owner = np.searchsorted(starts, rows, side="right") - 1
-        self.order = np.argsort(owner, kind="stable")
-        self.send = np.bincount(owner, minlength=comm.size).astype(np.int64)
-        self.recv = np.array(comm.alltoall(self.send.tolist()), dtype=np.int64)
-        r = self._route(np.asarray(rows, np.int64)[self.order]) - start
-        c = self._route(np.asarray(cols, np.int64)[self.order])
-        n_cols = self.n_cols(comm, start, n_local)
-        keys, position = np.unique(r * np.int64(n_cols) + c, return_inverse=True)
-        del r, c
+        self.plans = [self._plan(owner[:n_fixed]), self._plan(owner[n_fixed:])]
+        parts = [(rows[:n_fixed], cols[:n_fixed]), (rows[n_fixed:], cols[n_fixed:])]
+        n_cols = comm.allreduce(n_local, op=MPI.SUM)
+        keys = np.concatenate([self._route(plan, np.asarray(r, np.int64)) - start
+                               for plan, (r, _) in zip(self.plans, parts)]) * np.int64(n_cols)
+        keys += np.concatenate([self._route(plan, np.asarray(c, np.int64)) for plan, (_, c) in zip(self.plans, parts)])
+        keys, position = np.unique(keys, return_inverse=True)
         small = np.int32 if len(keys) < 2**31 else np.int64
-        self.position, self.order = position.astype(small), self.order.astype(small)
-        local_rows = keys // n_cols
+        n_first = int(self.plans[0][2].sum())
+        self.positions = (position[:n_first].astype(small), position[n_first:].astype(small))
+        del position
         self.indices = (keys % n_cols).astype(PETSc.IntType)
-        self.indptr = np.concatenate(([0], np.cumsum(np.bincount(local_rows, minlength=n_local)))).astype(PETSc.IntType)
+        self.indptr = np.concatenate(([0], np.cumsum(np.bincount(keys // n_cols, minlength=n_local)))).astype(PETSc.IntType)
+        self.base = np.zeros(len(keys))
 
-    @staticmethod
-    def n_cols(comm, start, n_local) -> int:
-        return comm.allreduce(n_local, op=MPI.SUM)
+    def _plan(self, owner: np.ndarray):
+        order = np.argsort(owner, kind="stable").astype(np.int64)
+        send = np.bincount(owner, minlength=self.comm.size).astype(np.int64)
+        recv = np.array(self.comm.alltoall(send.tolist()), dtype=np.int64)
+        return order, send, recv
 
-    def _route(self, data: np.ndarray) -> np.ndarray:
+    def _route(self, plan, data: np.ndarray) -> np.ndarray:
+        order, send, recv = plan
+        data = data[order]
         if self.comm.size == 1:
             return data
-        out = np.empty(int(self.recv.sum()), dtype=data.dtype)
-        sd = np.concatenate(([0], np.cumsum(self.send)[:-1]))
-        rd = np.concatenate(([0], np.cumsum(self.recv)[:-1]))
-        self.comm.Alltoallv([data, (self.send, sd)], [out, (self.recv, rd)])
+        out = np.empty(int(recv.sum()), dtype=data.dtype)
+        sd = np.concatenate(([0], np.cumsum(send)[:-1]))
+        rd = np.concatenate(([0], np.cumsum(recv)[:-1]))
+        self.comm.Alltoallv([data, (send, sd)], [out, (recv, rd)])
         return out
 
+    def set_fixed(self, values: np.ndarray) -> None:
+        v = self._route(self.plans[0], np.asarray(values, np.float64))
+        self.base = np.bincount(self.positions[0], weights=v, minlength=len(self.indices))
+
     def csr(self, values: np.ndarray) -> np.ndarray:
-        """Summed values in the order of (indptr, indices)."""
-        v = self._route(np.asarray(values, np.float64)[self.order])
-        return np.bincount(self.position, weights=v, minlength=len(self.indices)).astype(PETSc.ScalarType)
+        """Summed values (constant part + these) in the order of (indptr, indices)."""
+        v = self._route(self.plans[1], np.asarray(values, np.float64))
+        return (self.base + np.bincount(self.positions[1], weights=v, minlength=len(self.indices))).astype(PETSc.ScalarType)
 
 
 def _owned_rows(V: dolfinx.fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray]:
@@ -435,7 +446,7 @@ class ContactProblem:
 
     def _assemble(self) -> tuple[PETSc.Mat, PETSc.Vec]:
         """The combined matrix (values only: its COO pattern is fixed) and right-hand side."""
-        values = [self._coo_plate[2], self._coo_mean[2]]
+        values = []
         b = self.b_plate.copy()
         for pr in self.pairs:
             M = pr["M"]
@@ -458,20 +469,25 @@ class ContactProblem:
             for vec in (g0, Mg0, f):
                 vec.destroy()
         t = self._triplets
-        self.K.setValuesCSR(t.indptr, t.indices, t.csr(np.concatenate(values)), addv=PETSc.InsertMode.INSERT_VALUES)
+        contact = np.concatenate(values) if values else np.zeros(0)
+        self.K.setValuesCSR(t.indptr, t.indices, t.csr(contact), addv=PETSc.InsertMode.INSERT_VALUES)
         self.K.assemble()
         return self.K, b
 
     def _first_matrix(self):
         """The combined matrix, created once from the COO pattern of plates, pin and contact pairs
         (repeated entries are summed; off-rank entries travel with the assembly)."""
+        if getattr(self, "K", None) is not None:  # a second solve() reuses it
+            return
         rows = [self._coo_plate[0], self._coo_mean[0]] + [pr["coo"][0] for pr in self.pairs]
         cols = [self._coo_plate[1], self._coo_mean[1]] + [pr["coo"][1] for pr in self.pairs]
         n_local = self.layout.n_local
         start = self.comm.exscan(n_local) or 0
-        t = self._triplets = _Triplets(self.comm, start, n_local, np.concatenate(rows), np.concatenate(cols))
+        n_fixed = len(self._coo_plate[0]) + len(self._coo_mean[0])
+        t = self._triplets = _Triplets(self.comm, start, n_local, np.concatenate(rows), np.concatenate(cols), n_fixed)
         del rows, cols  # the indices live on in the CSR pattern only
-        self._coo_plate = (None, None, self._coo_plate[2])
+        t.set_fixed(np.concatenate([self._coo_plate[2], self._coo_mean[2]]))
+        self._coo_plate = self._coo_mean = None
         for pr in self.pairs:
             pr["coo"] = None
         K = PETSc.Mat().createAIJ(((n_local, self.layout.n + 1),) * 2, comm=self.comm)
