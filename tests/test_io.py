@@ -168,6 +168,7 @@ def test_cli_bad_input_exits_2_and_writes_nothing(tmp_path):
     (lambda: Yarn([[0, 0, 0], [1, 0, np.inf]], ConstantSection(Ellipse(1, 1))), "not finite"),
     (lambda: Yarn([[0, 0, 0], [1, 0, 0]], ConstantSection(Ellipse(1, 1)), "spline"), "interpolation must be one of"),
     (lambda: Cell(0, 1), "cell size lx must be > 0"),
+    (lambda: Cell(1, 1, x0="left"), "cell origin x0 must be a number"),
     (lambda: build("orthogonal", weft_width=2.7), "narrower than the binder height"),
     (lambda: build("satin", harness=6, move=2), "coprime"),
 ])

@@ -29,11 +29,17 @@ class Cell:
     z_range: tuple | None = None
 
     def __post_init__(self):
-        check_positive("cell size lx", self.lx)
-        check_positive("cell size ly", self.ly)
+        object.__setattr__(self, "lx", check_positive("cell size lx", self.lx))
+        object.__setattr__(self, "ly", check_positive("cell size ly", self.ly))
         for name in ("x0", "y0"):
-            if not np.isfinite(getattr(self, name)):
+            value = getattr(self, name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError, OverflowError):
+                raise TextileError(f"cell origin {name} must be a number, got {value!r}") from None
+            if not np.isfinite(value):
                 raise TextileError(f"cell origin {name} must be finite, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, value)
         if self.z_range is not None:
             lo, hi = map(float, self.z_range)
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):

@@ -52,7 +52,7 @@ def _attr(el, name: str, where: str, default=None, kind=float):
         return default
     try:
         return kind(float(text)) if kind in (int, bool) else kind(text)
-    except ValueError:
+    except (ValueError, OverflowError):
         raise FormatError(f"{where}: attribute {name}={text!r} is not a {kind.__name__}") from None
 
 
@@ -176,7 +176,10 @@ def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
         reps = yarns[0].repeats
         if len(reps) != 2 or abs(reps[0, 1]) + abs(reps[1, 0]) > 0:
             raise FormatError(f"{where}: no <Domain> and no axis-aligned repeats to define the unit cell")
-        return Cell(float(reps[0, 0]), float(reps[1, 1]))
+        try:
+            return Cell(float(reps[0, 0]), float(reps[1, 1]))
+        except TextileError as e:
+            raise FormatError(f"{where}: repeats as the unit cell: {e}") from None
     if dom.get("type") != "CDomainPlanes":
         raise FormatError(f"{where}: unsupported domain type {dom.get('type')!r} (only CDomainPlanes)")
     lo, hi = [None] * 3, [None] * 3
@@ -226,7 +229,13 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     if not yarn_els:
         raise FormatError(f"{where}: the file holds no yarns (saved with OUTPUT_MINIMAL?); "
                           "save it from TexGen with OUTPUT_STANDARD or OUTPUT_FULL")
-    yarns = [_yarn(y, where) for y in sorted(yarn_els, key=lambda y: int(y.get("index", 0) or 0))]
+    def index(y):
+        try:
+            return int(y.get("index", 0) or 0)
+        except ValueError:
+            raise FormatError(f"{where}: <Yarn index={y.get('index')!r}> is not a whole number") from None
+
+    yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
     cell = _domain(el, yarns, where)
     try:
         return Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
