@@ -179,18 +179,24 @@ def test_geometry_is_insensitive_to_ten_times_ec():
 def test_serial_and_parallel_runs_agree(name, seed):
     # the orthogonal weave at 0.5 is partitioned so that some binder dofs are owned by a rank that
     # holds no binder cell around them (this once lost unknowns on 2 ranks)
+    # (the orthogonal weave's penalty active set can cycle on a path that round-off decides: the
+    # augmented method's is robust, and its answer does not depend on the path)
     t = build(name, spacing=2.0, width=1.8, height=0.3, thickness=0.6) if name == "plain" else build(name)
-    alone = run(t, MeshOptions(seed), comm=MPI.COMM_SELF, log=None)
-    shared = run(t, MeshOptions(seed), comm=MPI.COMM_WORLD, log=None)
+    options = SolverOptions(method="penalty" if name == "plain" else "augmented")
+    alone = run(t, MeshOptions(seed), options=options, comm=MPI.COMM_SELF, log=None)
+    shared = run(t, MeshOptions(seed), options=options, comm=MPI.COMM_WORLD, log=None)
     assert alone.solution.converged and shared.solution.converged
     # mean and RMS of every yarn's displacement equal to 1e-8 mm (the partition changes only the
-    # order of floating-point sums)
+    # order of floating-point sums); the orthogonal weave's augmented iteration may take another
+    # path through the active sets, and its answer is then the same to a tenth of the penetration
+    # tolerance (1e-4 mm)
+    tol = 1e-8 if name == "plain" else 1e-5
     for wa, wb, ya, yb in zip(alone.solution.w, shared.solution.w, alone.midsurfaces.yarns, shared.midsurfaces.yarns):
         area = integral(dolfinx.fem.Constant(ya.mesh, 1.0), ya.dx)
-        assert integral(wb, yb.dx) / area == pytest.approx(integral(wa, ya.dx) / area, abs=1e-8)
+        assert integral(wb, yb.dx) / area == pytest.approx(integral(wa, ya.dx) / area, abs=tol)
         assert np.sqrt(integral(wb * wb, yb.dx) / area) == pytest.approx(np.sqrt(integral(wa * wa, ya.dx) / area),
-                                                                         abs=1e-8)
-    assert shared.solution.max_penetration == pytest.approx(alone.solution.max_penetration, abs=1e-8)
+                                                                         abs=tol)
+    assert shared.solution.max_penetration == pytest.approx(alone.solution.max_penetration, abs=max(tol, 1e-8))
 
 
 @pytest.mark.serial
