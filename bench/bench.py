@@ -112,7 +112,6 @@ def one_case(name: str) -> dict:
         "dofs": int(sum(y.V.dofmap.index_map.size_global for y in ms.yarns)),
         "cells": int(projected.stats["cells"]), "iterations": solution.iterations,
         "updates": solution.updates, "converged": bool(solution.converged),
-        "factorisations": solution.times.get("factorisations"),
         "time_s": {**{k: times[k] for k in core}, "end_to_end": sum(times[k] for k in core),
                    "extras": times["extras"], "factor": solution.times.get("factor")},
         "memory_mb": {"peak_sum": comm.allreduce(peak, op=MPI.SUM), "peak_max_rank": comm.allreduce(peak, op=MPI.MAX),
