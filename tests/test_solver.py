@@ -175,28 +175,43 @@ def test_geometry_is_insensitive_to_ten_times_ec():
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("name, seed", [("plain", 1.0), ("orthogonal", 0.5)])
-def test_serial_and_parallel_runs_agree(name, seed):
-    # the orthogonal weave at 0.5 is partitioned so that some binder dofs are owned by a rank that
-    # holds no binder cell around them (this once lost unknowns on 2 ranks)
-    # (the orthogonal weave's penalty active set can cycle on a path that round-off decides: the
-    # augmented method's is robust, and its answer does not depend on the path)
-    t = build(name, spacing=2.0, width=1.8, height=0.3, thickness=0.6) if name == "plain" else build(name)
-    options = SolverOptions(method="penalty" if name == "plain" else "augmented")
-    alone = run(t, MeshOptions(seed), options=options, comm=MPI.COMM_SELF, log=None)
-    shared = run(t, MeshOptions(seed), options=options, comm=MPI.COMM_WORLD, log=None)
+def test_serial_and_parallel_runs_agree():
+    t = build("plain", spacing=2.0, width=1.8, height=0.3, thickness=0.6)
+    alone = run(t, MeshOptions(1.0), comm=MPI.COMM_SELF, log=None)
+    shared = run(t, MeshOptions(1.0), comm=MPI.COMM_WORLD, log=None)
     assert alone.solution.converged and shared.solution.converged
     # mean and RMS of every yarn's displacement equal to 1e-8 mm (the partition changes only the
-    # order of floating-point sums); the orthogonal weave's augmented iteration may take another
-    # path through the active sets, and its answer is then the same to a tenth of the penetration
-    # tolerance (1e-4 mm)
-    tol = 1e-8 if name == "plain" else 1e-5
+    # order of floating-point sums)
     for wa, wb, ya, yb in zip(alone.solution.w, shared.solution.w, alone.midsurfaces.yarns, shared.midsurfaces.yarns):
         area = integral(dolfinx.fem.Constant(ya.mesh, 1.0), ya.dx)
-        assert integral(wb, yb.dx) / area == pytest.approx(integral(wa, ya.dx) / area, abs=tol)
+        assert integral(wb, yb.dx) / area == pytest.approx(integral(wa, ya.dx) / area, abs=1e-8)
         assert np.sqrt(integral(wb * wb, yb.dx) / area) == pytest.approx(np.sqrt(integral(wa * wa, ya.dx) / area),
-                                                                         abs=tol)
-    assert shared.solution.max_penetration == pytest.approx(alone.solution.max_penetration, abs=max(tol, 1e-8))
+                                                                         abs=1e-8)
+    assert shared.solution.max_penetration == pytest.approx(alone.solution.max_penetration, abs=1e-8)
+
+
+@pytest.mark.mpi
+def test_every_yarn_dof_has_one_unknown_whatever_the_partition():
+    # The orthogonal weave at 0.5 is partitioned so that some binder dofs are owned (in the parent
+    # space) by a rank holding no binder cell around them; they once got no unknown on 2 ranks.
+    # The unknowns are the yarn dofs minus their periodic images: the same count on any partition,
+    # and the plate matrices map every yarn dof to one.
+    t = build("orthogonal")
+    counts = []
+    for comm in (MPI.COMM_SELF, MPI.COMM_WORLD):
+        ms = mid_surfaces(projected_mesh(t, MeshOptions(0.5), comm, log=None), log=None)
+        problem = ContactProblem(ms, PlateParameters(), SolverOptions(), log=None)
+        images = sum(len(p) for p in ms.periodic)
+        dofs = sum(y.V.dofmap.index_map.size_global for y in ms.yarns)
+        assert problem.layout.n == dofs - images
+        for R in problem.R:  # one 1 per row: every yarn dof has its unknown
+            ones = R.createVecRight()
+            ones.set(1.0)
+            rows = R.createVecLeft()
+            R.mult(ones, rows)
+            assert rows.min()[1] == 1.0 and rows.max()[1] == 1.0
+        counts.append(problem.layout.n)
+    assert counts[0] == counts[1]
 
 
 @pytest.mark.serial
