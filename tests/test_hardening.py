@@ -260,3 +260,16 @@ def test_every_option_of_every_command_has_help():
             for flag in action.option_strings:
                 assert flag in text, f"{name} {flag}"
     assert "Exit codes" in parser.format_help() and "130 interrupted" in parser.format_help()
+
+
+@pytest.mark.mpi
+def test_cycling_contact_states_are_reported():
+    # two crossing strips pressed together with a penalty of 1e8 N/mm^3 (1e5 x the paper's): the
+    # active set flips between two states at the contact edge; the run stops and says so
+    from test_solver import crossing_strips
+
+    ms = mid_surfaces(projected_mesh(crossing_strips(), MeshOptions(0.25), log=None), log=None)
+    sol = ContactProblem(ms, PlateParameters(Ec=1e8), SolverOptions(), loads={0: -0.05, 1: 0.05}, log=None).solve()
+    assert not sol.converged
+    assert "the contact states cycle: iteration" in sol.reason
+    assert sol.history[-1]["changed"] > 0
