@@ -244,20 +244,24 @@ def test_twill_builder_volume_is_section_area_times_length(spacing, fill, aspect
     assert np.sum(col.top - col.bottom) * dA == pytest.approx(expected, rel=0.01)
 
 
+def mutated(data, text: str, splice: int, delete: int) -> str:
+    """The text cut at a drawn place, or with up to `splice` drawn characters in place of one, or
+    with up to `delete` characters removed there."""
+    kind = data.draw(st.sampled_from(["truncate", "splice", "delete"]))
+    i = data.draw(st.integers(0, len(text) - 1))
+    if kind == "truncate":
+        return text[:i]
+    if kind == "splice":
+        return text[:i] + data.draw(st.text(max_size=splice)) + text[i + 1:]
+    return text[:i] + text[i + data.draw(st.integers(1, delete)):]
+
+
 @pytest.mark.serial
 @settings(max_examples=FUZZ, deadline=None, suppress_health_check=SUPPRESS)
 @given(data=st.data())
 def test_tg3_reader_raises_only_format_errors(data, satin_tg3, tmp_path):
     # Cut or corrupt the file anywhere: the reader answers with FormatError, nothing else.
-    text = satin_tg3
-    kind = data.draw(st.sampled_from(["truncate", "splice", "delete"]))
-    i = data.draw(st.integers(0, len(text) - 1))
-    if kind == "truncate":
-        text = text[:i]
-    elif kind == "splice":
-        text = text[:i] + data.draw(st.text(max_size=8)) + text[i + 1:]
-    else:
-        text = text[:i] + text[i + data.draw(st.integers(1, 200)):]
+    text = mutated(data, satin_tg3, splice=8, delete=200)
     path = tmp_path / "fuzz.tg3"
     path.write_text(text)
     try:
@@ -315,15 +319,7 @@ section = {type = "power_ellipse", width = 1.2, height = 0.25, power = 0.6}
 def test_toml_reader_raises_only_format_errors(data, tmp_path):
     # Hand-written TOML cut, spliced with any characters, or with a span deleted: a FormatError
     # (or TextileError naming a bad value), or a valid model; never KeyError, IndexError, ...
-    text = TOML_MODEL
-    kind = data.draw(st.sampled_from(["truncate", "splice", "delete"]))
-    i = data.draw(st.integers(0, len(text) - 1))
-    if kind == "truncate":
-        text = text[:i]
-    elif kind == "splice":
-        text = text[:i] + data.draw(st.text(max_size=6)) + text[i + 1:]
-    else:
-        text = text[:i] + text[i + data.draw(st.integers(1, 40)):]
+    text = mutated(data, TOML_MODEL, splice=6, delete=40)
     path = tmp_path / "fuzz.toml"
     path.write_text(text)
     try:

@@ -482,7 +482,7 @@ class ContactProblem:
         rows = [self._coo_plate[0], self._coo_mean[0]] + [pr["coo"][0] for pr in self.pairs]
         cols = [self._coo_plate[1], self._coo_mean[1]] + [pr["coo"][1] for pr in self.pairs]
         n_local = self.layout.n_local
-        start = self.comm.exscan(n_local) or 0
+        start = self.layout.start
         n_fixed = len(self._coo_plate[0]) + len(self._coo_mean[0])
         t = self._triplets = _Triplets(self.comm, start, n_local, np.concatenate(rows), np.concatenate(cols), n_fixed)
         del rows, cols  # the indices live on in the CSR pattern only
