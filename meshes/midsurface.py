@@ -204,9 +204,12 @@ def _check_stacking(ms: MidSurfaces, apart: dict) -> None:
 
 def _periodic_structure(ms: MidSurfaces) -> None:
     """Per yarn, its global parent dofs on or beyond the right/top sides (the seam and the ghost
-    strip) paired with their periodic images inside the cell."""
+    strip) paired with their periodic images inside the cell; none when the edges are free."""
     V, comm = ms.V, ms.V.mesh.comm
     cell = ms.projected.cell
+    if not cell.periodic:
+        ms.periodic.extend(np.zeros((0, 2), np.int64) for _ in ms.yarns)
+        return
     x0, x1, y0, y1 = cell.bounds
     tol = 1e-8 * max(cell.lx, cell.ly)
     imap = V.dofmap.index_map

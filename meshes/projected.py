@@ -245,32 +245,9 @@ def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str)
         surfaces = [t for t, c in covering.items() if tuple(sorted(c)) == s]
         gmsh.model.addPhysicalGroup(2, surfaces, k, name="yarns " + (" ".join(map(str, s)) or "none"))
 
-    # Periodic sides: each right (top) boundary curve is a translated copy of a left (bottom) one;
-    # pair them by their centres of mass.
-    tol = max(sliver, 1e-6 * max(cell.lx, cell.ly))
-    curves = [c for _, c in gmsh.model.getEntities(1)]
-    centres = np.array([occ.getCenterOfMass(1, c) for c in curves]).reshape(-1, 3)
-    for axis, (lo, hi) in ((0, (x0, x1)), (1, (y0, y1))):
-        on_lo = [k for k, c in enumerate(curves) if _on_line(curves[k], axis, lo, tol)]
-        on_hi = [k for k, c in enumerate(curves) if _on_line(curves[k], axis, hi, tol)]
-        shift = np.zeros(3)
-        shift[axis] = hi - lo
-        masters, slaves = [], []
-        for k in on_lo:
-            d = np.linalg.norm(centres[on_hi] - (centres[k] + shift), axis=1) if on_hi else np.array([np.inf])
-            j = int(np.argmin(d))
-            if d[j] > tol:
-                raise GeometryError(f"periodic boundary curves do not match across the cell: the curve "
-                                    f"centred at {np.round(centres[k, :2], 4).tolist()} has no copy at "
-                                    f"{'x' if axis == 0 else 'y'} = {hi:.4f} mm")
-            masters.append(curves[k])
-            slaves.append(curves[on_hi[j]])
-        if len(set(slaves)) != len(on_hi):
-            raise GeometryError(f"periodic boundary curves do not pair one to one along "
-                                f"{'x' if axis == 0 else 'y'} ({len(on_lo)} vs {len(on_hi)} curves)")
-        T = np.eye(4)
-        T[axis, 3] = hi - lo
-        gmsh.model.mesh.setPeriodic(1, slaves, masters, T.ravel().tolist())
+    if cell.periodic:
+        _periodic_sides(cell, sliver)
+
 
     # Narrow regions (gaps between yarns, strips along the cell sides; width ~ 2 area / perimeter) get
     # elements twice their width: one row of well-shaped triangles across, no needles.
@@ -313,11 +290,45 @@ def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str)
     node_index = {int(tag): k for k, tag in enumerate(gmsh.model.mesh.getNodes()[0])}
     p = xyz[[node_index[int(t)] for t in tri.ravel()]].reshape(-1, 3, 3)[:, :, :2]
     angles = _triangle_angles(p)
-    _add_ghost_strip(cell, coverage)
+    if cell.periodic:
+        _add_ghost_strip(cell, coverage)
     return _mesh_arrays(), coverage, {"nodes": int(len(np.unique(tri))), "triangles": int(len(tri)),
                       "min_angle_deg": float(angles.min()),
                       "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
                       "regions": int(len(covering)), "sliver_tolerance_mm": sliver}
+
+
+def _periodic_sides(cell, sliver: float) -> None:
+    """Periodic sides: each right (top) boundary curve is a translated copy of a left (bottom) one;
+    pair them by their centres of mass and make gmsh mesh them alike."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    x0, x1, y0, y1 = cell.bounds
+    tol = max(sliver, 1e-6 * max(cell.lx, cell.ly))
+    curves = [c for _, c in gmsh.model.getEntities(1)]
+    centres = np.array([occ.getCenterOfMass(1, c) for c in curves]).reshape(-1, 3)
+    for axis, (lo, hi) in ((0, (x0, x1)), (1, (y0, y1))):
+        on_lo = [k for k, c in enumerate(curves) if _on_line(curves[k], axis, lo, tol)]
+        on_hi = [k for k, c in enumerate(curves) if _on_line(curves[k], axis, hi, tol)]
+        shift = np.zeros(3)
+        shift[axis] = hi - lo
+        masters, slaves = [], []
+        for k in on_lo:
+            d = np.linalg.norm(centres[on_hi] - (centres[k] + shift), axis=1) if on_hi else np.array([np.inf])
+            j = int(np.argmin(d))
+            if d[j] > tol:
+                raise GeometryError(f"periodic boundary curves do not match across the cell: the curve "
+                                    f"centred at {np.round(centres[k, :2], 4).tolist()} has no copy at "
+                                    f"{'x' if axis == 0 else 'y'} = {hi:.4f} mm")
+            masters.append(curves[k])
+            slaves.append(curves[on_hi[j]])
+        if len(set(slaves)) != len(on_hi):
+            raise GeometryError(f"periodic boundary curves do not pair one to one along "
+                                f"{'x' if axis == 0 else 'y'} ({len(on_lo)} vs {len(on_hi)} curves)")
+        T = np.eye(4)
+        T[axis, 3] = hi - lo
+        gmsh.model.mesh.setPeriodic(1, slaves, masters, T.ravel().tolist())
 
 
 def _mesh_arrays() -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Coupons: n x m repeats of a unit cell as one periodic problem (issue 7)."""
+"""Coupons: n x m repeats of a unit cell as one problem, periodic or with free edges (issue 7)."""
 
 import numpy as np
 import pytest
@@ -7,6 +7,7 @@ from mpi4py import MPI
 from textile_fenicsx.config import load_model
 from textile_fenicsx.coupon import tile
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.fields import evaluate
 from textile_fenicsx.meshes.projected import MeshOptions
 from textile_fenicsx.metrics import measure
 from textile_fenicsx.pipeline import run
@@ -53,3 +54,82 @@ def test_coupon_solution_repeats_the_unit_cell():
     assert s["max_abs_w"] == pytest.approx(unit["max_abs_w"], rel=0.02)
     assert s["max_penetration_nodal"] == pytest.approx(unit["max_penetration_nodal"], rel=0.05)
     assert 1.6 * unit["dofs"] < s["dofs"] < 2.4 * unit["dofs"]  # two cells, meshed anew
+
+
+@pytest.mark.serial
+def test_free_coupon_holds_every_yarn_that_reaches_in():
+    # a 3 x 2 plain coupon cut from the fabric: 2 x 2 = 4 warps along x and 2 x 3 = 6 wefts along
+    # y (the sides lie in the gaps between yarns: no yarn is cut lengthwise), none periodic, each
+    # running at least a period beyond both sides; inside the box the model is the periodic one
+    t = build("plain")
+    free = tile(t, 3, 2, free_edges=True)
+    assert not free.cell.periodic and free.cell.lx == pytest.approx(3 * t.cell.lx)
+    along_x = [y for y in free.yarns if abs(y.period[1]) < 1e-9]
+    along_y = [y for y in free.yarns if abs(y.period[0]) < 1e-9]
+    assert (len(along_x), len(along_y)) == (4, 6)
+    x0, x1, y0, y1 = free.cell.bounds
+    for y in free.yarns:
+        assert not y.periodic and len(y.repeats) == 0
+        lo, hi = y.nodes[:, :2].min(axis=0), y.nodes[:, :2].max(axis=0)
+        if y in along_x:
+            assert lo[0] <= x0 - t.cell.lx and hi[0] >= x1 + t.cell.lx
+        else:
+            assert lo[1] <= y0 - t.cell.ly and hi[1] >= y1 + t.cell.ly
+    periodic = tile(t, 3, 2)
+    # the same ray grid over the same box; the free yarns are longer, so their surface stations
+    # (0.1 mm apart) fall elsewhere along the same path: volumes agree to the polygonisation (1e-4;
+    # the interpenetration, a small difference of surfaces, to 1e-3)
+    a, b = measure(periodic, 150), measure(free, 150)
+    assert b["yarn_volume"]["total"] == pytest.approx(a["yarn_volume"]["total"], rel=1e-4)
+    assert b["interpenetration"]["volume"] == pytest.approx(a["interpenetration"]["volume"], rel=1e-3)
+    with pytest.raises(TextileError, match="free edges already"):
+        tile(free, 2, 2)
+
+
+@pytest.mark.mpi
+def test_free_coupon_is_symmetric_and_its_edge_effect_decays():
+    # A 3 x 3 plain coupon with free edges is its own image under a half turn about its centre
+    # (warp i -> 5 - i, weft j -> 5 - j keeps every crossing's parity): its solution must be too,
+    # to the mesh's own asymmetry (gmsh's mesh is not symmetric; z0 sampled at mirrored points
+    # differs by as much, 0.7 % of max |w| at seed 0.5). The yarns' cut ends are free: the edge
+    # repeats move far from the periodic solution (by ~max |w|), the centre repeat stays close to
+    # it (Saint-Venant: the edge disturbance decays within a cell).
+    comm = MPI.COMM_WORLD
+    unit = build("plain")
+    free = run(tile(unit, 3, 3, free_edges=True), MeshOptions(0.5), log=None)
+    periodic = run(unit, MeshOptions(0.5), log=None)
+    assert free.solution.converged
+    ys, w = free.midsurfaces.yarns, free.solution.w
+    x0, x1, y0, y1 = free.textile.cell.bounds
+    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+    X = [y.V.tabulate_dof_coordinates()[:y.V.dofmap.index_map.size_local, :2] for y in ys]
+    mean = np.array([comm.allreduce(x.sum(axis=0), op=MPI.SUM) / comm.allreduce(len(x), op=MPI.SUM) for x in X])
+    w_max = comm.allreduce(max(np.abs(f.x.array).max(initial=0) for f in w), op=MPI.MAX)
+    defect, z0_defect = 0.0, 0.0
+    for i, y in enumerate(ys):
+        j = int(np.argmin(np.linalg.norm(mean - (2 * centre - mean[i]), axis=1)))  # the image yarn
+        assert j != i
+        # every rank evaluates the same points: gather this yarn's owned dof points
+        pts = np.vstack(comm.allgather(X[i]))
+        mine = np.vstack(comm.allgather(np.column_stack((evaluate(w[i], pts), evaluate(y.z0, pts)))))[:len(pts)]
+        image = np.column_stack((evaluate(w[j], 2 * centre - pts), evaluate(ys[j].z0, 2 * centre - pts)))
+        ok = ~np.isnan(image[:, 0]) & ~np.isnan(mine[:, 0])
+        assert ok.mean() > 0.9
+        defect = max(defect, np.abs(mine[ok, 0] - image[ok, 0]).max())
+        z0_defect = max(z0_defect, np.abs(mine[ok, 1] - image[ok, 1]).max())
+    assert w_max > 0.2
+    assert z0_defect < 0.01 * w_max
+    assert defect < 2 * z0_defect + 1e-3 * w_max
+    # free vs periodic, per repeat: the largest difference of w
+    L = unit.cell.lx
+    names = [u.name for u in unit.yarns]
+    diff = np.zeros((3, 3))
+    for i, y in enumerate(ys):
+        k = names.index(free.textile.yarns[i].name.split(" [")[0])
+        pts = np.vstack(comm.allgather(X[i]))
+        d = np.abs(evaluate(w[i], pts) - evaluate(periodic.solution.w[k], np.mod(pts, L)))
+        rep = np.clip(np.floor((pts - [x0, y0]) / L).astype(int), 0, 2)
+        np.fmax.at(diff, (rep[:, 0], rep[:, 1]), np.nan_to_num(d))
+    edge = np.delete(diff.ravel(), 4)
+    assert edge.min() > 0.5 * w_max
+    assert diff[1, 1] < 0.02 * w_max

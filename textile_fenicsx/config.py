@@ -208,7 +208,7 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     if "cell" not in d:
         raise FormatError(f"{where}: a yarn list needs a [cell] table")
     c = d["cell"]
-    _keys(c, f"{where}.cell", {"lx", "ly", "x0", "y0", "z_range"}, {"lx", "ly"})
+    _keys(c, f"{where}.cell", {"lx", "ly", "x0", "y0", "z_range", "periodic"}, {"lx", "ly"})
     try:
         cell = Cell(**{k: (tuple(v) if k == "z_range" else v) for k, v in c.items()})
     except (TextileError, TypeError, OverflowError) as e:
@@ -229,7 +229,9 @@ def textile_to_dict(t: Textile) -> dict:
     cell = {"lx": c.lx, "ly": c.ly, "x0": c.x0, "y0": c.y0}
     if c.z_range is not None:
         cell["z_range"] = list(c.z_range)
-    return {"name": t.name, "cell": {k: (float(v) if not isinstance(v, list) else v) for k, v in cell.items()},
+    if not c.periodic:
+        cell["periodic"] = False
+    return {"name": t.name, "cell": {k: (float(v) if not isinstance(v, (list, bool)) else v) for k, v in cell.items()},
             "resolution": {"spacing": t.resolution.spacing, "section_points": t.resolution.section_points},
             "yarns": [yarn_to_dict(y) for y in t.yarns]}
 

@@ -25,7 +25,11 @@ from textile_fenicsx.yarn import ConstantSection, NodeSections, Yarn
 
 
 def _wrap(xy: np.ndarray, cell: Cell) -> np.ndarray:
-    x0, _, y0, _ = cell.bounds
+    """In-plane points brought into the cell: by periodicity, or (free edges) onto its nearest side,
+    so that a yarn's stretch beyond a cut end keeps the displacement of the end."""
+    x0, x1, y0, y1 = cell.bounds
+    if not cell.periodic:
+        return np.column_stack((np.clip(xy[:, 0], x0, x1), np.clip(xy[:, 1], y0, y1)))
     return np.column_stack((x0 + np.mod(xy[:, 0] - x0, cell.lx), y0 + np.mod(xy[:, 1] - y0, cell.ly)))
 
 
@@ -83,5 +87,5 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
     heights = [max(s.height for s in y.section.sections()) for y in yarns]
     lo, hi = z.min() - max(heights), z.max() + max(heights)
     z_range = None if c.z_range is None else (min(c.z_range[0], lo), max(c.z_range[1], hi))
-    return Textile(Cell(c.lx, c.ly, c.x0, c.y0, z_range), yarns, name=f"{textile.name}_corrected",
+    return Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected",
                    resolution=textile.resolution)

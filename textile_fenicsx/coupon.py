@@ -7,6 +7,11 @@ many parallel copies as the coupon has room for (nx ny / k). The coupon is perio
 whole pipeline runs on it unchanged; solved, every repeat sees the same neighbours, which makes a
 tiled solution equal to the unit cell's (a test checks it) until something breaks the symmetry
 (free edges, per-repeat variability).
+
+`tile(..., free_edges=True)` cuts the coupon out of the infinite fabric instead: its cell is not
+periodic, and every yarn that reaches into it is one non-periodic yarn running a period beyond
+each side (so its path inside is the periodic path, end effects of the interpolation outside).
+The plates then end at the coupon's sides with free edges (no constraint, no seam terms).
 """
 
 from dataclasses import replace
@@ -48,13 +53,18 @@ def _continued(yarn, k: int, name: str):
                    angles=per_node(yarn.angles), name=name)
 
 
-def tile(textile: Textile, nx: int, ny: int) -> Textile:
-    """The textile repeated nx times along x and ny times along y, as one periodic cell."""
+def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textile:
+    """The textile repeated nx times along x and ny times along y, as one periodic cell, or as a
+    coupon with free edges."""
     for label, n in (("nx", nx), ("ny", ny)):
         if int(n) != n or n < 1:
             raise TextileError(f"coupon repeats {label} must be a whole number >= 1, got {n!r}")
     nx, ny = int(nx), int(ny)
     c = textile.cell
+    if not c.periodic:
+        raise TextileError(f"{textile.name}: its cell has free edges already; only a periodic unit cell can be tiled")
+    if free_edges:
+        return _free_coupon(textile, nx, ny)
     big = Cell(nx * c.lx, ny * c.ly, c.x0, c.y0, c.z_range)
     yarns = []
     for yarn in textile.yarns:
@@ -76,3 +86,45 @@ def tile(textile: Textile, nx: int, ny: int) -> Textile:
                 copy = _continued(yarn, k, f"{yarn.name} [{i},{j}]")
                 yarns.append(replace(copy, nodes=copy.nodes + shift, repeats=big.repeats.copy()))
     return Textile(big, yarns, name=f"{textile.name}_{nx}x{ny}", resolution=textile.resolution)
+
+
+def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
+    c = textile.cell
+    box = Cell(nx * c.lx, ny * c.ly, c.x0, c.y0, c.z_range, periodic=False)
+    x0, x1, y0, y1 = box.bounds
+    corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
+    yarns = []
+    for yarn in textile.yarns:
+        a, b = _lattice_steps(yarn, c)
+        if b < 0 or (b == 0 and a < 0):  # the same line, walked the other way
+            a, b = -a, -b
+        P = yarn.period[:2]
+        seen = set()
+        for i in range(-1, nx + 1):
+            for j in range(-1, ny + 1):
+                t = j // b if b else i // a  # (i, j) and (i, j) - t (a, b) are the same yarn
+                key = (i - t * a, j - t * b)
+                if key in seen:
+                    continue
+                seen.add(key)
+                shift = np.array([key[0] * c.lx, key[1] * c.ly])
+                # whole periods from before the box to beyond it, one more on each side
+                tau = (corners - yarn.nodes[0, :2] - shift) @ P / (P @ P)
+                first, last = int(np.floor(tau.min())) - 1, int(np.ceil(tau.max())) + 1
+                copy = _continued(yarn, last - first, f"{yarn.name} [{key[0]},{key[1]}]")
+                move = np.r_[shift + first * P, 0.0]
+                copy = replace(copy, nodes=copy.nodes + move, periodic=False, repeats=np.zeros((0, 3)))
+                if _enters(copy, textile.resolution.section_points, box):
+                    yarns.append(copy)
+    return Textile(box, yarns, name=f"{textile.name}_{nx}x{ny}_free", resolution=textile.resolution)
+
+
+def _enters(yarn, section_points: int, box: Cell) -> bool:
+    """Does the yarn's outline seen along z reach into the box (by more than a micrometre)?"""
+    s = yarn.stations(0.05 * min(box.lx, box.ly))
+    pos, _, up, side = yarn.frames(s)
+    sec = yarn.section_points(s, section_points)
+    xy = (pos[:, None, :2] + sec[..., :1] * side[:, None, :2] + sec[..., 1:] * up[:, None, :2]).reshape(-1, 2)
+    x0, x1, y0, y1 = box.bounds
+    tol = 1e-3
+    return bool(np.any((xy[:, 0] > x0 + tol) & (xy[:, 0] < x1 - tol) & (xy[:, 1] > y0 + tol) & (xy[:, 1] < y1 - tol)))

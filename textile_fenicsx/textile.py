@@ -20,13 +20,16 @@ from textile_fenicsx.yarn import Yarn
 
 @dataclass(frozen=True)
 class Cell:
-    """The unit cell [x0, x0 + lx] x [y0, y0 + ly] in mm; z_range (zmin, zmax) clips if given."""
+    """The unit cell [x0, x0 + lx] x [y0, y0 + ly] in mm; z_range (zmin, zmax) clips if given.
+    periodic: the cell repeats (its opposite sides are the same points); False for a coupon with
+    free edges, whose sides are the yarns' cut ends."""
 
     lx: float
     ly: float
     x0: float = 0.0
     y0: float = 0.0
     z_range: tuple | None = None
+    periodic: bool = True
 
     def __post_init__(self):
         object.__setattr__(self, "lx", check_positive("cell size lx", self.lx))
@@ -45,6 +48,9 @@ class Cell:
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
                 raise TextileError(f"cell z_range must be finite with zmax > zmin, got {self.z_range!r}")
             object.__setattr__(self, "z_range", (lo, hi))
+        if not isinstance(self.periodic, (bool, np.bool_)):
+            raise TextileError(f"cell periodic must be true or false, got {self.periodic!r}")
+        object.__setattr__(self, "periodic", bool(self.periodic))
 
     @property
     def repeats(self) -> np.ndarray:
@@ -122,7 +128,7 @@ class Textile:
                 raise TextileError(f"textile {self.name!r}: yarn {i} is not a Yarn")
             if not y.name:
                 y.name = f"yarn {i}"
-            if y.periodic:
+            if y.periodic and self.cell.periodic:
                 self._check_closes(y)
         self._triangles = {}
 

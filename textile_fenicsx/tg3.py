@@ -196,8 +196,11 @@ def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
     if any(v is None for v in lo[:2] + hi[:2]):
         raise FormatError(f"{where}: Domain planes do not bound x and y on both sides")
     z_range = (lo[2], hi[2]) if lo[2] is not None and hi[2] is not None else None
+    # TexGen repeats yarns by their repeat vectors and clips them by the domain: with no repeats at
+    # all, the domain is a coupon with free edges
+    periodic = any(len(y.repeats) for y in yarns)
     try:
-        return Cell(hi[0] - lo[0], hi[1] - lo[1], lo[0], lo[1], z_range)
+        return Cell(hi[0] - lo[0], hi[1] - lo[1], lo[0], lo[1], z_range, periodic)
     except TextileError as e:
         raise FormatError(f"{where}: Domain: {e}") from None
 
