@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import basix
 import numpy as np
+import scipy.sparse
 import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -181,32 +182,46 @@ class _Layout:
 
 
 class _Triplets:
-    """A matrix given as (row, column, value) triplets from any rank, repeated entries summed, with
-    a fixed pattern: the indices are routed to the rows' owners and compressed once. The first
-    n_fixed triplets have constant values (`set_fixed`, once); afterwards `csr(values)` moves only
-    the values of the others (in the order given) and adds them to the constant part."""
+    """The combined matrix on this rank's rows in CSR, from (row, column, value) triplets given on
+    any rank (each routed to its row's owner; repeated entries summed). Constant triplets (plates,
+    pin) come yarn by yarn (`add_fixed`, collective) and are compressed as they come; `freeze`
+    then fixes the pattern with the contact triplets' (row, column), after which `csr(values)`
+    moves only the contact values and adds them to the constant part. The indices are never held
+    as one big uncompressed array (that was the solver's memory peak on large coupons)."""
 
-    def __init__(self, comm: MPI.Comm, start: int, n_local: int, rows: np.ndarray, cols: np.ndarray,
-                 n_fixed: int):
-        self.comm = comm
-        starts = np.array(comm.allgather(start))
-        owner = np.searchsorted(starts, rows, side="right") - 1
-        self.plans = [self._plan(owner[:n_fixed]), self._plan(owner[n_fixed:])]
-        parts = [(rows[:n_fixed], cols[:n_fixed]), (rows[n_fixed:], cols[n_fixed:])]
-        n_cols = comm.allreduce(n_local, op=MPI.SUM)
-        keys = np.concatenate([self._route(plan, np.asarray(r, np.int64)) - start
-                               for plan, (r, _) in zip(self.plans, parts)]) * np.int64(n_cols)
-        keys += np.concatenate([self._route(plan, np.asarray(c, np.int64)) for plan, (_, c) in zip(self.plans, parts)])
-        keys, position = np.unique(keys, return_inverse=True)
-        small = np.int32 if len(keys) < 2**31 else np.int64
-        n_first = int(self.plans[0][2].sum())
-        self.positions = (position[:n_first].astype(small), position[n_first:].astype(small))
-        del position
-        self.indices = (keys % n_cols).astype(PETSc.IntType)
-        self.indptr = np.concatenate(([0], np.cumsum(np.bincount(keys // n_cols, minlength=n_local)))).astype(PETSc.IntType)
-        self.base = np.zeros(len(keys))
+    def __init__(self, comm: MPI.Comm, start: int, n_local: int):
+        self.comm, self.start, self.n_local = comm, start, n_local
+        self.starts = np.array(comm.allgather(start))
+        self.n_cols = comm.allreduce(n_local, op=MPI.SUM)
+        self._fixed = []  # compressed (local row, column, value) pieces
 
-    def _plan(self, owner: np.ndarray):
+    def _coo(self, rows, cols, vals) -> scipy.sparse.csr_matrix:
+        """A local-rows CSR of owned-row triplets, repeated entries summed, zeros kept."""
+        return scipy.sparse.coo_matrix((vals, (rows - self.start, cols)), shape=(self.n_local, self.n_cols)).tocsr()
+
+    def add_fixed(self, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> None:
+        plan = self._plan(rows)
+        A = self._coo(*(self._route(plan, np.asarray(a, dt)) for a, dt in
+                        ((rows, np.int64), (cols, np.int64), (vals, np.float64)))).tocoo()
+        self._fixed.append((A.row, A.col, A.data))
+
+    def freeze(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        """Fix the pattern: the constant entries and these (row, column) of the contact values."""
+        self.plan = self._plan(rows)
+        r, c = (self._route(self.plan, np.asarray(a, np.int64)) for a in (rows, cols))
+        fr, fc, fv = (np.concatenate(a) for a in zip(*self._fixed)) if self._fixed else (np.zeros(0, int),) * 3
+        self._fixed = None
+        U = self._coo(np.concatenate([fr + self.start, r]), np.concatenate([fc, c]),
+                      np.concatenate([fv, np.zeros(len(r))]))
+        del fr, fc, fv
+        self.base = U.data.copy()  # the constant part, in the pattern's order
+        U.data = np.arange(U.nnz, dtype=np.float64)  # each entry's position, to look the contact's up
+        small = np.int32 if U.nnz < 2**31 else np.int64
+        self.positions = np.asarray(U[r - self.start, c]).ravel().astype(small) if len(r) else np.zeros(0, small)
+        self.indptr, self.indices = U.indptr.astype(PETSc.IntType), U.indices.astype(PETSc.IntType)
+
+    def _plan(self, rows: np.ndarray):
+        owner = np.searchsorted(self.starts, rows, side="right") - 1
         order = np.argsort(owner, kind="stable").astype(np.int64)
         send = np.bincount(owner, minlength=self.comm.size).astype(np.int64)
         recv = np.array(self.comm.alltoall(send.tolist()), dtype=np.int64)
@@ -223,14 +238,10 @@ class _Triplets:
         self.comm.Alltoallv([data, (send, sd)], [out, (recv, rd)])
         return out
 
-    def set_fixed(self, values: np.ndarray) -> None:
-        v = self._route(self.plans[0], np.asarray(values, np.float64))
-        self.base = np.bincount(self.positions[0], weights=v, minlength=len(self.indices))
-
     def csr(self, values: np.ndarray) -> np.ndarray:
-        """Summed values (constant part + these) in the order of (indptr, indices)."""
-        v = self._route(self.plans[1], np.asarray(values, np.float64))
-        return (self.base + np.bincount(self.positions[1], weights=v, minlength=len(self.indices))).astype(PETSc.ScalarType)
+        """Summed values (constant part + these contact values) in the order of (indptr, indices)."""
+        v = self._route(self.plan, np.asarray(values, np.float64))
+        return (self.base + np.bincount(self.positions, weights=v, minlength=len(self.indices))).astype(PETSc.ScalarType)
 
 
 def _owned_rows(V: dolfinx.fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray]:
@@ -254,6 +265,7 @@ class ContactProblem:
         self.times = {}
         t0 = time.perf_counter()
         self.layout = _Layout(ms)
+        self._triplets = _Triplets(self.comm, self.layout.start, self.layout.n_local)
         V_imap = ms.V.dofmap.index_map
         self._parent_global = V_imap.local_to_global(
             np.arange(V_imap.size_local + V_imap.num_ghosts, dtype=np.int32))
@@ -268,6 +280,10 @@ class ContactProblem:
         assembled elsewhere arrive with their couplings): their parents come from their owners."""
         indptr, cols, vals = A.getValuesCSR()
         rows = self._parent_global[y.to_parent[np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))]]
+        return rows, self._column_parents(y, cols), vals
+
+    def _column_parents(self, y, cols: np.ndarray) -> np.ndarray:
+        """Global parent dofs of yarn y's dofs given by their global index in y's space (any rank's)."""
         imap = y.V.dofmap.index_map
         owned = PETSc.Vec().createMPI((imap.size_local, imap.size_global), comm=self.comm)
         owned.getArray()[:] = self._parent_global[y.to_parent[:imap.size_local]]
@@ -279,7 +295,7 @@ class ContactProblem:
         parents = np.rint(got.getArray()).astype(np.int64)[back]
         for obj in (owned, got, index, scatter):
             obj.destroy()
-        return rows, parents, vals
+        return parents
 
     def _yarn_map(self, y) -> PETSc.Mat:
         rows_local, rows_global = _owned_rows(y.V)
@@ -290,7 +306,6 @@ class ContactProblem:
     def _plates(self, loads, kf):
         p = self.params
         self.R, self.b_plate = [], None
-        coo = []  # (row unknown, column unknown, value) of every yarn's R^T A R
         b = PETSc.Vec().createMPI((self.layout.n_local, self.layout.n + 1), comm=self.comm)
         b.set(0.0)
         for y in self.ms.yarns:
@@ -316,14 +331,12 @@ class ContactProblem:
             bi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             R = self._yarn_map(y)
             rows, cols, vals = self._parents(y, A)
-            coo.append((self.layout.unknown(y.yarn, rows), self.layout.unknown(y.yarn, cols), vals.copy()))
+            self._triplets.add_fixed(self.layout.unknown(y.yarn, rows), self.layout.unknown(y.yarn, cols), vals)
             R.multTransposeAdd(bi, b, b)
             self.R.append(R)
             A.destroy()
             bi.destroy()
         self.b_plate = b
-        self._coo_plate = tuple(np.concatenate(a) if coo else np.zeros(0) for a in zip(*coo)) if coo else \
-            (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
 
     def _mean_constraint(self, kf: float):
         """The common vertical translation (the energy's null space when there is no foundation).
@@ -351,85 +364,102 @@ class ContactProblem:
             entries = [(mult, mult)]
         if self.comm.rank != 0:  # COO entries are summed over ranks: give them once
             entries = []
-        self._coo_mean = (np.array([e[0] for e in entries], np.int64), np.array([e[1] for e in entries], np.int64),
-                          np.ones(len(entries)))
+        self._triplets.add_fixed(np.array([e[0] for e in entries], np.int64),
+                                 np.array([e[1] for e in entries], np.int64), np.ones(len(entries)))
 
     def _contact_setup(self):
-        """Per adjacent pair: gap function on the upper yarn, its form, and the map T_p."""
+        """Per adjacent pair: its overlap, the contact forms on the upper yarn, and where its
+        entries go in K. The pair's gap and pressure live in arrays over its overlap dofs only;
+        the forms read them from the upper yarn's scratch Functions, filled just before use (per
+        yarn, not per pair: whole-yarn Functions and matrices per pair cost memory in proportion to
+        pairs x yarn size, gigabytes on large coupons)."""
         p = self.params
-        self.pairs = []
         yarns = self.ms.yarns
+        self.pairs = []
+        self._scratch = {}  # upper yarn -> (g, lam, g0, -g at quadrature points): what the forms read
+        coo_rows, coo_cols = [], []  # T^T M T's pattern, as unknowns
+        cell_order = {}
+        quadrature = basix.make_quadrature(basix.CellType.triangle, 4)[0]
         for (u, l), cells in self.ms.contact.items():
             yu, yl = yarns[u], yarns[l]
+            if u not in self._scratch:
+                g_fn, lam_fn, g0_fn = (dolfinx.fem.Function(yu.V, name=n) for n in ("gap", "pressure", "gap0"))
+                # -g at the contact forms' quadrature points (degree 4); compiled on every rank (collective)
+                self._scratch[u] = (g_fn, lam_fn, g0_fn, dolfinx.fem.Expression(-g_fn, quadrature))
+                cell_order[u] = np.argsort(yu.parent_cells)
+            g_fn, lam_fn, g0_fn, _ = self._scratch[u]
             # the pair's cells on u's submesh
-            parent_to_sub = {int(c): k for k, c in enumerate(yu.parent_cells.tolist())}
-            sub_cells = np.array(sorted(parent_to_sub[int(c)] for c in cells), dtype=np.int32)
+            k = np.searchsorted(yu.parent_cells, cells, sorter=cell_order[u])
+            sub_cells = np.sort(cell_order[u][k]).astype(np.int32)
             tags = dolfinx.mesh.meshtags(yu.mesh, 2, sub_cells, np.full(len(sub_cells), 1, np.int32))
             dx = ufl.Measure("dx", yu.mesh, subdomain_data=tags, subdomain_id=1)
-            dofs = self.ms.contact_dofs[(u, l)]
-            g = dolfinx.fem.Function(yu.V, name="gap")
-            g0 = np.zeros_like(g.x.array)
-            g0[dofs[:, 0]] = (yu.z0.x.array[dofs[:, 0]] - yu.t.x.array[dofs[:, 0]] / 2) \
-                - (yl.z0.x.array[dofs[:, 1]] + yl.t.x.array[dofs[:, 1]] / 2)
-            lam = dolfinx.fem.Function(yu.V, name="pressure")
             Ec, Et = (dolfinx.fem.Constant(yu.mesh, float(v)) for v in (self._penalty, p.Et))
-            a = dolfinx.fem.form(contact_mass(ufl.TrialFunction(yu.V), ufl.TestFunction(yu.V), g, Ec, Et, dx,
-                                              shift=lam / Ec))
-            L_lam = dolfinx.fem.form(contact_pressure(ufl.TestFunction(yu.V), g, Ec, Et, lam, dx))
-            # T_p: owned overlap rows of u: +1 at w_u, -1 at w_l (the same point)
+            v = ufl.TestFunction(yu.V)
+            a = dolfinx.fem.form(contact_mass(ufl.TrialFunction(yu.V), v, g_fn, Ec, Et, dx, shift=lam_fn / Ec))
+            # the right-hand side T^T (f - M g0): the pressure's load where contact is active, and
+            # the stiffness acting on the initial gap
+            L = dolfinx.fem.form(contact_pressure(v, g_fn, Ec, Et, lam_fn, dx)
+                                 - contact_mass(g0_fn, v, g_fn, Ec, Et, dx, shift=lam_fn / Ec))
+            pen_form = dolfinx.fem.form(ufl.max_value(-g_fn, 0) * dx)
+            # the overlap's dofs (owned and ghost) on u and on l (the same points)
+            dofs = self.ms.contact_dofs[(u, l)]
+            du, dl = dofs[:, 0], dofs[:, 1]
             n_owned = yu.V.dofmap.index_map.size_local
-            own = dofs[dofs[:, 0] < n_owned]
-            rows = yu.V.dofmap.index_map.local_to_global(own[:, 0].astype(np.int32))
-            cu = self.layout.unknown(u, self._parent_global[yu.to_parent[own[:, 0]]])
-            cl = self.layout.unknown(l, self._parent_global[yl.to_parent[own[:, 1]]])
-            T = self.layout.matrix(n_owned, yu.V.dofmap.index_map.size_global,
-                                   (np.concatenate([rows, rows]), np.concatenate([cu, cl]),
-                                    np.concatenate([np.ones(len(rows)), -np.ones(len(rows))])))
-            overlap = np.zeros(len(g.x.array), bool)
-            overlap[dofs[:, 0]] = True
-            n_cells = yu.mesh.topology.index_map(2).size_local
-            pen_form = dolfinx.fem.form(ufl.max_value(-g, 0) * dx)
-            # -g at the contact forms' quadrature points (degree 4); compiled on every rank (collective)
-            pen_expr = dolfinx.fem.Expression(-g, basix.make_quadrature(basix.CellType.triangle, 4)[0])
-            # T^T M T in COO: M's pattern is fixed (the form's cells), so its entries (i, j) add
-            # +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j)
-            M = dolfinx.fem.petsc.assemble_matrix(a)
-            M.assemble()
-            i, j, _ = self._parents(yu, M)  # crossing yarns share the parent's dofs
-            ui, uj, li, lj = (self.layout.unknown(k, d) for k, d in ((u, i), (u, j), (l, i), (l, j)))
-            coo = (np.concatenate([ui, ui, li, li]), np.concatenate([uj, lj, uj, lj]))
-            self.pairs.append(dict(pair=(u, l), g=g, g0=g0, lam=lam, a=a, L_lam=L_lam, T=T, pen_form=pen_form, pen_expr=pen_expr,
-                                   cells=sub_cells[sub_cells < n_cells],
-                                   overlap=overlap, owned_overlap=np.flatnonzero(overlap[:n_owned]),
-                                   M=M, coo=coo))
+            g0 = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
+            parent = self._parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
+            cu, cl = self.layout.unknown(u, parent), self.layout.unknown(l, parent)
+            # M = k(g) u v on the overlap: its owned rows' entries (i, j) as parent dofs (a column
+            # may be a dof this rank does not hold: rows get couplings from cells elsewhere)
+            M = dolfinx.fem.create_matrix(a)
+            nnz = int(M.indptr[n_owned])
+            i = self._parent_global[yu.to_parent[np.repeat(np.arange(n_owned), np.diff(M.indptr[:n_owned + 1]))]]
+            j = self._column_parents(yu, M.index_map(1).local_to_global(M.indices[:nnz]))
+            # T^T M T: entry (i, j) adds +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j)
+            ui, uj, li, lj = (self.layout.unknown(y, d) for y, d in ((u, i), (u, j), (l, i), (l, j)))
+            coo_rows.append(np.concatenate([ui, ui, li, li]))
+            coo_cols.append(np.concatenate([uj, lj, uj, lj]))
+            del i, j, ui, uj, li, lj
+            owned = np.flatnonzero(du < n_owned)
+            self.pairs.append(dict(pair=(u, l), dofs=du, owned=owned, g0=g0, g=g0.copy(), lam=np.zeros(len(du)),
+                                   cu=cu, cl=cl, nnz=nnz, a=a, L=L, pen_form=pen_form, M=M,
+                                   cells=sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]))
+        self._triplets.freeze(np.concatenate(coo_rows) if coo_rows else np.zeros(0, np.int64),
+                              np.concatenate(coo_cols) if coo_cols else np.zeros(0, np.int64))
+        # x at every unknown an overlap dof of this rank needs, gathered by one scatter
+        need = np.unique(np.concatenate([np.concatenate([pr["cu"], pr["cl"]]) for pr in self.pairs]
+                                        + [np.zeros(0, np.int64)]))
+        for pr in self.pairs:
+            pr["gu"], pr["gl"] = np.searchsorted(need, pr.pop("cu")), np.searchsorted(need, pr.pop("cl"))
+            pr["bu"], pr["bl"] = need[pr["gu"][pr["owned"]]], need[pr["gl"][pr["owned"]]]
+        self._x_needed = PETSc.Vec().createSeq(len(need), comm=PETSc.COMM_SELF)
+        index = PETSc.IS().createGeneral(need.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+        self._x_gather = PETSc.Scatter().create(self.b_plate, index, self._x_needed, None)
+        index.destroy()
+
+    def _fill(self, pr) -> None:
+        """Put the pair's gap and pressure into its upper yarn's scratch Functions."""
+        g_fn, lam_fn, g0_fn, _ = self._scratch[pr["pair"][0]]
+        g_fn.x.array[pr["dofs"]] = pr["g"]
+        lam_fn.x.array[pr["dofs"]] = pr["lam"]
+        g0_fn.x.array[pr["dofs"]] = pr["g0"]
 
     # --- iteration ------------------------------------------------------------------------
 
     def _update_gaps(self, x: PETSc.Vec):
+        """g = g0 + w_u - w_l at every overlap dof of this rank (ghosts included)."""
+        self._x_gather.scatter(x, self._x_needed, addv=PETSc.InsertMode.INSERT_VALUES,
+                               mode=PETSc.ScatterMode.FORWARD)
+        xs = self._x_needed.getArray(readonly=True)
         for pr in self.pairs:
-            g = pr["g"]
-            tmp = pr["T"].createVecLeft()
-            pr["T"].mult(x, tmp)
-            n = g.function_space.dofmap.index_map.size_local
-            g.x.array[:n] = pr["g0"][:n] + tmp.getArray()
-            g.x.scatter_forward()
-            tmp.destroy()
+            pr["g"] = pr["g0"] + xs[pr["gu"]] - xs[pr["gl"]]
 
     def _state(self) -> np.ndarray:
-        parts = []
-        for pr in self.pairs:
-            g = pr["g"].x.array[pr["owned_overlap"]]
-            shift = pr["lam"].x.array[pr["owned_overlap"]] / self._penalty
-            parts.append(g < shift)
+        parts = [pr["g"][pr["owned"]] < pr["lam"][pr["owned"]] / self._penalty for pr in self.pairs]
         return np.concatenate(parts) if parts else np.zeros(0, bool)
 
     def max_penetration(self) -> float:
         """Largest -g over the overlap dofs [mm] (0 when no dof penetrates)."""
-        local = 0.0
-        for pr in self.pairs:
-            g = pr["g"].x.array[pr["owned_overlap"]]
-            if len(g):
-                local = max(local, float(np.max(-g)))
+        local = max((float(np.max(-pr["g"][pr["owned"]])) for pr in self.pairs if len(pr["owned"])), default=0.0)
         return self.comm.allreduce(local, op=MPI.MAX)
 
     def penetration(self) -> tuple[float, float]:
@@ -437,37 +467,36 @@ class ContactProblem:
         forms [mm], and the penetration volume, the integral of max(0, -g) over the overlaps [mm^3]."""
         worst, volume = 0.0, 0.0
         for pr in self.pairs:
-            cells = pr["cells"]
-            if len(cells):
-                vals = pr["pen_expr"].eval(pr["g"].function_space.mesh, cells)
+            self._fill(pr)
+            u = pr["pair"][0]
+            if len(pr["cells"]):
+                vals = self._scratch[u][3].eval(self.ms.yarns[u].mesh, pr["cells"])
                 worst = max(worst, float(np.max(vals)))
             volume += dolfinx.fem.assemble_scalar(pr["pen_form"])
         return self.comm.allreduce(worst, op=MPI.MAX), self.comm.allreduce(volume, op=MPI.SUM)
 
     def _assemble(self) -> tuple[PETSc.Mat, PETSc.Vec]:
-        """The combined matrix (values only: its COO pattern is fixed) and right-hand side."""
+        """The combined matrix (values only: its pattern is fixed) and right-hand side."""
         values = []
         b = self.b_plate.copy()
+        rows, adds = [], []
         for pr in self.pairs:
+            self._fill(pr)
             M = pr["M"]
-            M.zeroEntries()
-            dolfinx.fem.petsc.assemble_matrix(M, pr["a"])
-            M.assemble()
-            m = M.getValuesCSR()[2]
+            M.set_value(0.0)
+            dolfinx.fem.assemble_matrix(M, pr["a"])
+            M.scatter_reverse()
+            m = M.data[:pr["nnz"]]
             values.append(np.concatenate([m, -m, -m, m]))
-            # right-hand side: -T^T M g0 + T^T (lam where active)
-            g0 = M.createVecRight()
-            arr = g0.getArray()
-            arr[:] = pr["g0"][:len(arr)]
-            Mg0 = M.createVecLeft()
-            M.mult(g0, Mg0)
-            Mg0.scale(-1.0)
-            f = dolfinx.fem.petsc.assemble_vector(pr["L_lam"])
-            f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            Mg0.axpy(1.0, f)
-            pr["T"].multTransposeAdd(Mg0, b, b)
-            for vec in (g0, Mg0, f):
-                vec.destroy()
+            f = dolfinx.fem.assemble_vector(pr["L"])
+            f.scatter_reverse(dolfinx.la.InsertMode.add)
+            v = f.array[pr["dofs"][pr["owned"]]]
+            rows += [pr["bu"], pr["bl"]]
+            adds += [v, -v]
+        if rows:
+            b.setValues(np.concatenate(rows).astype(PETSc.IntType), np.concatenate(adds),
+                        addv=PETSc.InsertMode.ADD_VALUES)
+        b.assemble()
         t = self._triplets
         contact = np.concatenate(values) if values else np.zeros(0)
         self.K.setValuesCSR(t.indptr, t.indices, t.csr(contact), addv=PETSc.InsertMode.INSERT_VALUES)
@@ -475,22 +504,11 @@ class ContactProblem:
         return self.K, b
 
     def _first_matrix(self):
-        """The combined matrix, created once from the COO pattern of plates, pin and contact pairs
-        (repeated entries are summed; off-rank entries travel with the assembly)."""
-        if getattr(self, "K", None) is not None:  # a second solve() reuses it
+        """The combined matrix, created from the fixed pattern of plates, pin and contact pairs."""
+        if getattr(self, "K", None) is not None:
             return
-        rows = [self._coo_plate[0], self._coo_mean[0]] + [pr["coo"][0] for pr in self.pairs]
-        cols = [self._coo_plate[1], self._coo_mean[1]] + [pr["coo"][1] for pr in self.pairs]
-        n_local = self.layout.n_local
-        start = self.layout.start
-        n_fixed = len(self._coo_plate[0]) + len(self._coo_mean[0])
-        t = self._triplets = _Triplets(self.comm, start, n_local, np.concatenate(rows), np.concatenate(cols), n_fixed)
-        del rows, cols  # the indices live on in the CSR pattern only
-        t.set_fixed(np.concatenate([self._coo_plate[2], self._coo_mean[2]]))
-        self._coo_plate = self._coo_mean = None
-        for pr in self.pairs:
-            pr["coo"] = None
-        K = PETSc.Mat().createAIJ(((n_local, self.layout.n + 1),) * 2, comm=self.comm)
+        t = self._triplets
+        K = PETSc.Mat().createAIJ(((self.layout.n_local, self.layout.n + 1),) * 2, comm=self.comm)
         K.setPreallocationCSR((t.indptr, t.indices, np.zeros(len(t.indices), PETSc.ScalarType)))
         K.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         self.K = K
@@ -580,13 +598,13 @@ class ContactProblem:
                 break
             updates += 1
             for pr in self.pairs:  # Uzawa: lam <- max(0, lam - Ec g)
-                lam, g = pr["lam"], pr["g"]
-                lam.x.array[:] = np.where(pr["overlap"], np.maximum(0.0, lam.x.array - self._penalty * g.x.array), 0)
-                lam.x.scatter_forward()
+                pr["lam"] = np.maximum(0.0, pr["lam"] - self._penalty * pr["g"])
             state, seen = self._state(), {}  # new multipliers: earlier states say nothing about cycling
             if self.log:
                 self.log(f"augmented Lagrangian update {updates}: max penetration {pen:.3e} mm")
-        ksp.destroy()
+        ksp.destroy()  # with the factors
+        self.K.destroy()  # rebuilt from the pattern if solve() is called again
+        self.K = None
         if self.free_translation:  # zero area-weighted mean (the gaps do not change)
             ones = x.duplicate()
             ones.set(1.0)
@@ -626,9 +644,8 @@ def gap_fields(problem: ContactProblem) -> list:
         state = dolfinx.fem.Function(y.V, name="contact")
         for pr in problem.pairs:
             if pr["pair"][0] == y.yarn:
-                m = pr["overlap"]
-                gap.x.array[m] = pr["g"].x.array[m]
-                state.x.array[m] = (pr["g"].x.array[m] < 0).astype(float)
+                gap.x.array[pr["dofs"]] = pr["g"]
+                state.x.array[pr["dofs"]] = (pr["g"] < 0).astype(float)
         out.append((gap, state))
     return out
 
