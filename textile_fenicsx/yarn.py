@@ -218,10 +218,15 @@ class Yarn:
         return float(self.length_table()[1][-1])
 
     def stations(self, spacing: float, minimum_per_segment: int = 4) -> np.ndarray:
-        """Parameters s of stations equispaced in arc length (at most `spacing` mm apart), ends included."""
+        """Parameters s of stations equispaced in arc length within each segment between master
+        nodes (at most `spacing` mm apart), the nodes and ends included. Per segment, so that a
+        yarn continued over several periods (a coupon's) has the same stations in every period."""
         s, cum = self.length_table()
-        n = max(int(np.ceil(cum[-1] / spacing)), minimum_per_segment * self.n_segments)
-        return np.interp(np.linspace(0, cum[-1], n + 1), cum, s)
+        at_nodes = cum[::(len(s) - 1) // self.n_segments]
+        counts = np.maximum(np.ceil(np.diff(at_nodes) / spacing).astype(int), minimum_per_segment)
+        targets = np.concatenate([np.linspace(a, b, n, endpoint=False) for a, b, n in
+                                  zip(at_nodes[:-1], at_nodes[1:], counts)] + [at_nodes[-1:]])
+        return np.interp(targets, cum, s)
 
     # --- sections ---------------------------------------------------------------------------
     def section_points(self, s, n_points: int) -> np.ndarray:
