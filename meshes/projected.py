@@ -9,13 +9,20 @@
    `distribute_entity_data`, as gmshio does), distributed with shared-facet ghosts (dS forms).
 4. A ghost strip (copies of the cells along the left and bottom sides, beyond the right and top
    sides) gives the periodic seam facets their second neighbour (DESIGN.md sections 6, 11).
+A coupon made by `coupon.tile` is not meshed by gmsh as a whole: its unit cell is, and the unit
+cell's triangles are repeated nx x ny times (the periodic sides match node for node), each cell
+going to the copy of its yarns whose centreline is nearest. Every repeat then has the same mesh,
+and a periodic coupon's solution repeats the unit cell's to round-off.
 """
 
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse
 from mpi4py import MPI
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError, TextileError
@@ -24,7 +31,7 @@ from textile_fenicsx.textile import Textile
 # How fast element size may grow away from narrow regions (size change per unit distance).
 GROWTH = 1.0
 # Cell tags of the ghost strip: a copy of region k's cells beyond the right/top sides has tag k + GHOST.
-GHOST = 10000
+GHOST = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -290,8 +297,6 @@ def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str)
     node_index = {int(tag): k for k, tag in enumerate(gmsh.model.mesh.getNodes()[0])}
     p = xyz[[node_index[int(t)] for t in tri.ravel()]].reshape(-1, 3, 3)[:, :, :2]
     angles = _triangle_angles(p)
-    if cell.periodic:
-        _add_ghost_strip(cell, coverage)
     return _mesh_arrays(), coverage, {"nodes": int(len(np.unique(tri))), "triangles": int(len(tri)),
                       "min_angle_deg": float(angles.min()),
                       "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
@@ -375,68 +380,86 @@ def _to_dolfinx(comm, arrays, partitioner):
     return msh, tags
 
 
-def _add_ghost_strip(cell, coverage: dict) -> None:
-    """Add the ghost strip to the meshed gmsh model (DESIGN.md sections 6 and 11).
-
-    The cells with an edge on the left (bottom) side are copied, shifted by the cell's width
-    (height), beyond the right (top) side; a copy reuses the mesh's own nodes on the right (top)
-    side, so the seam facets get a neighbour on each side and the solver can put the same facet
-    terms on them as on interior facets. Copies of region k form the physical group k + GHOST.
-    """
-    import gmsh
-
+def _ghost_strip(cell, x: np.ndarray, cells: np.ndarray, tags: np.ndarray):
+    """The mesh arrays with the ghost strip added (DESIGN.md sections 6 and 11): the cells with an
+    edge on the left (bottom) side are copied, shifted by the cell's width (height), beyond the
+    right (top) side; a copy reuses the mesh's own nodes on the right (top) side, so the seam facets
+    get a neighbour on each side and the solver can put the same facet terms on them as on interior
+    facets. A copy of a region-k cell has tag k + GHOST."""
     x0, x1, y0, y1 = cell.bounds
     tol = 1e-9 * max(cell.lx, cell.ly)
-    tags, xyz, _ = gmsh.model.mesh.getNodes()
-    xyz = xyz.reshape(-1, 3)
-    coord = dict(zip(tags.tolist(), xyz))
-    next_node = int(tags.max()) + 1
-    next_elem = int(np.concatenate(gmsh.model.mesh.getElements()[1]).max()) + 1
-    for axis, lo, hi, shift in ((0, x0, x1, (cell.lx, 0, 0)), (1, y0, y1, (0, cell.ly, 0))):
-        on_lo = np.abs(xyz[:, axis] - lo) < tol
-        on_hi = np.abs(xyz[:, axis] - hi) < tol
-        other = 1 - axis
-        hi_tags = tags[on_hi]
-        order = np.argsort(xyz[on_hi, other])
-        hi_sorted, hi_coord = hi_tags[order], xyz[on_hi, other][order]
-        lo_set = set(tags[on_lo].tolist())
-        for k in coverage:
-            copies, new_nodes, new_coords = [], {}, []
-            for ent in gmsh.model.getEntitiesForPhysicalGroup(2, k):
-                types, _, nodes = gmsh.model.mesh.getElements(2, ent)
-                for etype, enodes in zip(types, nodes):
-                    if etype != 2:
-                        continue
-                    for tri in enodes.reshape(-1, 3).tolist():
-                        if sum(n in lo_set for n in tri) < 2:
-                            continue
-                        row = []
-                        for n in tri:
-                            if n in lo_set:  # reuse the periodic partner on the opposite side
-                                j = np.searchsorted(hi_coord, coord[n][other] - tol)
-                                if j >= len(hi_coord) or abs(hi_coord[j] - coord[n][other]) > 10 * tol:
-                                    raise GeometryError("ghost strip: a boundary node has no periodic partner")
-                                row.append(int(hi_sorted[j]))
-                            else:
-                                if n not in new_nodes:
-                                    new_nodes[n] = next_node
-                                    new_coords.append(coord[n] + np.asarray(shift))
-                                    next_node += 1
-                                row.append(new_nodes[n])
-                        copies.append(row)
-            if not copies:
-                continue
-            ent = gmsh.model.addDiscreteEntity(2)
-            if new_nodes:
-                gmsh.model.mesh.addNodes(2, ent, list(new_nodes.values()), np.ravel(new_coords).tolist())
-            elems = list(range(next_elem, next_elem + len(copies)))
-            next_elem += len(copies)
-            gmsh.model.mesh.addElementsByType(ent, 2, elems, np.ravel(copies).tolist())
-            existing = [e for e in gmsh.model.getEntitiesForPhysicalGroup(2, k + GHOST)] \
-                if (2, k + GHOST) in gmsh.model.getPhysicalGroups(2) else []
-            if existing:
-                gmsh.model.removePhysicalGroups([(2, k + GHOST)])
-            gmsh.model.addPhysicalGroup(2, list(existing) + [ent], k + GHOST)
+    xs, cs, ts, n = [x], [cells], [tags], len(x)
+    for axis, lo, hi, length in ((0, x0, x1, cell.lx), (1, y0, y1, cell.ly)):
+        on_lo = np.abs(x[:, axis] - lo) < tol
+        on_hi = np.flatnonzero(np.abs(x[:, axis] - hi) < tol)
+        pick = on_lo[cells].sum(axis=1) >= 2
+        chosen = cells[pick]
+        side = np.unique(chosen[on_lo[chosen]])
+        inner = np.unique(chosen[~on_lo[chosen]])
+        other = 1 - axis  # a side node's partner: the node across the cell at the same coordinate
+        if len(side) and len(on_hi):
+            dist, k = cKDTree(x[on_hi][:, [other]]).query(x[side][:, [other]])
+        else:
+            dist, k = np.full(len(side), np.inf), np.zeros(len(side), int)
+        if np.any(dist > 10 * tol):
+            bad = x[side[np.argmax(dist)]]
+            raise GeometryError(f"ghost strip: the boundary node at ({bad[0]:.6f}, {bad[1]:.6f}) mm has no periodic "
+                                "partner on the opposite side")
+        new = np.full(len(x), -1, np.int64)
+        new[side] = on_hi[k]
+        new[inner] = n + np.arange(len(inner))
+        n += len(inner)
+        shift = np.zeros(2)
+        shift[axis] = length
+        xs.append(x[inner] + shift)
+        cs.append(new[chosen])
+        ts.append(tags[pick] + GHOST)
+    return np.vstack(xs), np.vstack(cs), np.concatenate(ts)
+
+
+def _tile(x: np.ndarray, cells: np.ndarray, tags: np.ndarray, coverage: dict, coupon: Textile):
+    """The unit cell's mesh arrays repeated over a coupon made by `coupon.tile`: coincident nodes
+    on the repeats' common sides merged, each cell's unit-cell yarns replaced by the coupon's
+    copies of them whose centrelines are nearest. Returns the coupon's arrays and coverage."""
+    tiling = coupon.tiling
+    unit = tiling.unit.cell
+    shifts = [(i * unit.lx, j * unit.ly) for i in range(tiling.nx) for j in range(tiling.ny)]
+    X = np.vstack([x + s for s in shifts])
+    C = np.vstack([cells + r * len(x) for r in range(len(shifts))])
+    T = np.tile(tags, len(shifts))
+    # nodes of neighbouring repeats on their common side coincide (to round-off): one node each
+    tol = 1e-9 * max(coupon.cell.lx, coupon.cell.ly)
+    same = cKDTree(X).query_pairs(tol, output_type="ndarray")
+    graph = scipy.sparse.coo_matrix((np.ones(len(same)), (same[:, 0], same[:, 1])), shape=(len(X), len(X)))
+    _, label = connected_components(graph, directed=False)
+    first = np.unique(label, return_index=True)[1]
+    X, C = X[first], label[C]
+    # unit yarn k over a cell -> the copy of k nearest to the cell's centre
+    centre = X[C].mean(axis=1)
+    copies = {}
+    for i, k in enumerate(tiling.source):
+        copies.setdefault(k, []).append(i)
+    covering = [[] for _ in range(len(C))]
+    for k, candidates in copies.items():
+        over = np.flatnonzero(np.isin(T, [t for t, yarns in coverage.items() if k in yarns]))
+        if len(over) == 0:
+            continue
+        d = np.column_stack([np.linalg.norm(coupon.nearest_centreline(c, centre[over])[0][:, :2] - centre[over], axis=1)
+                             for c in candidates])
+        order = np.argsort(d, axis=1)
+        rows = np.arange(len(over))
+        best = d[rows, order[:, 0]]
+        second = d[rows, order[:, 1]] if len(candidates) > 1 else np.full(len(over), np.inf)
+        if np.any(best > 0.5 * second):
+            m = int(np.argmax(best / second))
+            raise GeometryError(f"coupon mesh: the cell at ({centre[over[m], 0]:.3f}, {centre[over[m], 1]:.3f}) mm is "
+                                f"nearly as close to two copies of {tiling.unit.yarns[k].name}; cannot tell "
+                                "which covers it")
+        for cell_index, c in zip(over, np.asarray(candidates)[order[:, 0]]):
+            covering[cell_index].append(int(c))
+    sets = [tuple(sorted(c)) for c in covering]
+    tag_of = {s: t + 1 for t, s in enumerate(sorted(set(sets)))}
+    return X, C, np.array([tag_of[s] for s in sets], np.int32), {t: s for s, t in tag_of.items()}
 
 
 def _on_line(curve: int, axis: int, value: float, tol: float) -> bool:
@@ -501,9 +524,19 @@ def _mesh(textile, cell, options, comm, log, warnings) -> ProjectedMesh:
     try:
         if comm.rank == 0:
             try:
-                outlines = [(i, footprint_outlines(textile, i, options.seed / 4))
-                            for i in range(len(textile.yarns))] if textile is not None else []
-                arrays, coverage, stats = _gmsh_model(cell, outlines, options, f"projected-{name}")
+                # a coupon: its unit cell is meshed, then repeated
+                tiling = getattr(textile, "tiling", None)
+                source = tiling.unit if tiling is not None else textile
+                outlines = [(i, footprint_outlines(source, i, options.seed / 4))
+                            for i in range(len(source.yarns))] if source is not None else []
+                arrays, coverage, stats = _gmsh_model(source.cell if source is not None else cell, outlines,
+                                                      options, f"projected-{name}")
+                if tiling is not None:
+                    *arrays, coverage = _tile(*arrays, coverage, textile)
+                    stats.update(nodes=int(len(arrays[0])), triangles=int(len(arrays[1])), regions=len(coverage),
+                                 tiled=[tiling.nx, tiling.ny])
+                if cell.periodic:
+                    arrays = _ghost_strip(cell, *arrays)
             except (TextileError, Exception) as e:  # report on every rank, never hang
                 error = e
         error = comm.bcast(error, root=0)

@@ -14,7 +14,7 @@ each side (so its path inside is the periodic path, end effects of the interpola
 The plates then end at the coupon's sides with free edges (no constraint, no seam terms).
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from math import gcd
 
 import numpy as np
@@ -22,6 +22,17 @@ import numpy as np
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import NodeSections, PositionSections
+
+
+@dataclass(frozen=True)
+class Tiling:
+    """How a coupon was made: the unit cell `unit` repeated nx x ny times; source[i] is the unit
+    cell yarn that the coupon's yarn i continues."""
+
+    unit: Textile
+    nx: int
+    ny: int
+    source: tuple
 
 
 def _lattice_steps(yarn, cell: Cell) -> tuple[int, int]:
@@ -66,8 +77,8 @@ def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textil
     if free_edges:
         return _free_coupon(textile, nx, ny)
     big = Cell(nx * c.lx, ny * c.ly, c.x0, c.y0, c.z_range)
-    yarns = []
-    for yarn in textile.yarns:
+    yarns, source = [], []
+    for index, yarn in enumerate(textile.yarns):
         a, b = _lattice_steps(yarn, c)
         # k: fewest periods that bring the yarn back onto itself in the coupon
         kx = nx // gcd(a % nx, nx) if a % nx else 1
@@ -85,7 +96,9 @@ def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textil
                 shift = np.array([i * c.lx, j * c.ly, 0.0])
                 copy = _continued(yarn, k, f"{yarn.name} [{i},{j}]")
                 yarns.append(replace(copy, nodes=copy.nodes + shift, repeats=big.repeats.copy()))
-    return Textile(big, yarns, name=f"{textile.name}_{nx}x{ny}", resolution=textile.resolution)
+                source.append(index)
+    return Textile(big, yarns, name=f"{textile.name}_{nx}x{ny}", resolution=textile.resolution,
+                   tiling=Tiling(textile, nx, ny, tuple(source)))
 
 
 def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
@@ -93,8 +106,8 @@ def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
     box = Cell(nx * c.lx, ny * c.ly, c.x0, c.y0, c.z_range, periodic=False)
     x0, x1, y0, y1 = box.bounds
     corners = np.array([[x0, y0], [x1, y0], [x0, y1], [x1, y1]])
-    yarns = []
-    for yarn in textile.yarns:
+    yarns, source = [], []
+    for index, yarn in enumerate(textile.yarns):
         a, b = _lattice_steps(yarn, c)
         if b < 0 or (b == 0 and a < 0):  # the same line, walked the other way
             a, b = -a, -b
@@ -116,7 +129,9 @@ def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
                 copy = replace(copy, nodes=copy.nodes + move, periodic=False, repeats=np.zeros((0, 3)))
                 if _enters(copy, textile.resolution.section_points, box):
                     yarns.append(copy)
-    return Textile(box, yarns, name=f"{textile.name}_{nx}x{ny}_free", resolution=textile.resolution)
+                    source.append(index)
+    return Textile(box, yarns, name=f"{textile.name}_{nx}x{ny}_free", resolution=textile.resolution,
+                   tiling=Tiling(textile, nx, ny, tuple(source)))
 
 
 def _enters(yarn, section_points: int, box: Cell) -> bool:

@@ -113,12 +113,15 @@ class Columns:
 
 @dataclass(eq=False)
 class Textile:
-    """A unit cell with its yarns (mm, z through the thickness)."""
+    """A unit cell with its yarns (mm, z through the thickness). tiling: for a coupon made by
+    `coupon.tile`, how (the unit cell, the repeats, each yarn's source), so that its mesh can be
+    the unit cell's repeated; None otherwise."""
 
     cell: Cell
     yarns: list = field(default_factory=list)
     name: str = "textile"
     resolution: Resolution = field(default_factory=Resolution)
+    tiling: object = None
 
     def __post_init__(self):
         if not self.yarns:
