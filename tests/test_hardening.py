@@ -104,6 +104,7 @@ def test_seed_beyond_the_memory_limit_is_refused_before_meshing(reference_dir, t
 @pytest.mark.serial
 @pytest.mark.parametrize("args, message", [
     (["plain", "--repeat", "0", "2"], "coupon repeats nx must be a whole number >= 1"),
+    (["plain", "--free-edges"], "--free-edges needs --repeat"),
     (["plain", "--seed", "-1"], "seed must be a positive size"),
     (["plain", "--seed", "9"], "larger than the cell"),
     (["nosuchweave.toml"], "nosuchweave.toml"),

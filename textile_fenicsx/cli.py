@@ -193,17 +193,22 @@ def _solve(args) -> int:
 
 
 def _repeated(textile, args):
-    """The model, or its nx x ny coupon when --repeat was given."""
+    """The model, or its nx x ny coupon when --repeat was given (with free edges if asked)."""
     if getattr(args, "repeat", None) is None:
+        if getattr(args, "free_edges", False):
+            raise TextileError("--free-edges needs --repeat NX NY (use --repeat 1 1 for one cell)")
         return textile
     from textile_fenicsx.coupon import tile
 
-    return tile(textile, *args.repeat)
+    return tile(textile, *args.repeat, free_edges=args.free_edges)
 
 
 def _repeat_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeat", type=int, nargs=2, metavar=("NX", "NY"),
                    help="solve a coupon of NX x NY unit cells as one periodic cell (yarns continued across)")
+    p.add_argument("--free-edges", action="store_true",
+                   help="with --repeat: cut the coupon out of the fabric instead; its sides are the yarns' "
+                        "free ends (edge effects)")
 
 
 def _mesh_arguments(p: argparse.ArgumentParser) -> None:
