@@ -107,6 +107,7 @@ def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
         # mean z0 per parent cell, for the stacking order
         cell_dofs = Vs.dofmap.list
         mean_z0[i] = dict(zip(emap.tolist(), z0.x.array[cell_dofs].mean(axis=1).tolist()))
+    textile.forget_surfaces()  # sampled: the yarns' triangles are not needed by the later stages
     _contact_structure(out, mean_z0)
     _periodic_structure(out)
     if log is not None and comm.rank == 0:

@@ -59,6 +59,7 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
     if comm is not None and comm.size > 1:
         xy = np.array_split(xy, comm.size)[comm.rank]
     col = textile.columns(xy)
+    textile.forget_surfaces()  # every ray is cast: the triangles are not needed any more
     bot, top = _clipped(textile, col)
     n_yarns = len(textile.yarns)
     per_yarn = np.bincount(col.yarn, weights=top - bot, minlength=n_yarns) * dA

@@ -150,10 +150,12 @@ class Textile:
                                "non-periodic")
 
     # --- periodic copies --------------------------------------------------------------------
-    def _translations(self, yarn: Yarn, bbox_lo: np.ndarray, bbox_hi: np.ndarray) -> list[np.ndarray]:
-        """Repeat translations of a yarn whose box (bbox of one period) meets the cell's box."""
+    def _translations(self, yarn: Yarn, bbox_lo: np.ndarray, bbox_hi: np.ndarray,
+                      region: tuple | None = None) -> list[np.ndarray]:
+        """Repeat translations of a yarn whose box (bbox of one period) meets the cell's box (or
+        the region's (x0, x1, y0, y1))."""
         reps = yarn.repeats if len(yarn.repeats) else np.zeros((1, 3))
-        x0, x1, y0, y1 = self.cell.bounds
+        x0, x1, y0, y1 = self.cell.bounds if region is None else region
         reach = []
         for r in reps:
             size = np.linalg.norm(r[:2])
@@ -166,16 +168,35 @@ class Textile:
                 out.append(t)
         return out
 
-    def triangles(self, i: int) -> np.ndarray:
-        """Triangles (T, 3, 3) of yarn i's surface over the cell, periodic copies included."""
-        if i not in self._triangles:
+    def triangles(self, i: int, region: tuple | None = None) -> np.ndarray:
+        """Triangles (T, 3, 3) of yarn i's surface, periodic copies included, that vertical rays
+        through `region` (x0, x1, y0, y1; default the cell) can hit: only those whose plan reaches
+        it are kept (on a coupon, whole periodic copies of long yarns would cost gigabytes)."""
+        x0, x1, y0, y1 = self.cell.bounds
+        if region is not None:  # always the cell, and the region
+            x0, x1, y0, y1 = min(x0, region[0]), max(x1, region[1]), min(y0, region[2]), max(y1, region[3])
+        box, tris = self._triangles.get(i, (None, None))
+        if box is None or box[0] > x0 or box[1] < x1 or box[2] > y0 or box[3] < y1:
+            if box is not None:
+                x0, x1, y0, y1 = min(x0, box[0]), max(x1, box[1]), min(y0, box[2]), max(y1, box[3])
             yarn = self.yarns[i]
             verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
-            tris = _tube_triangles(verts, closed_ends=not yarn.periodic)
+            one = _tube_triangles(verts, closed_ends=not yarn.periodic)
             lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
-            copies = [tris + t for t in self._translations(yarn, lo, hi)]
-            self._triangles[i] = np.concatenate(copies) if copies else np.zeros((0, 3, 3))
-        return self._triangles[i]
+            pad = 1e-6 * max(self.cell.lx, self.cell.ly)
+            t_lo, t_hi = one[:, :, :2].min(axis=1), one[:, :, :2].max(axis=1)
+            copies = []
+            for t in self._translations(yarn, lo, hi, (x0, x1, y0, y1)):
+                keep = ((t_hi[:, 0] + t[0] >= x0 - pad) & (t_lo[:, 0] + t[0] <= x1 + pad)
+                        & (t_hi[:, 1] + t[1] >= y0 - pad) & (t_lo[:, 1] + t[1] <= y1 + pad))
+                copies.append(one[keep] + t)
+            tris = np.concatenate(copies) if copies else np.zeros((0, 3, 3))
+            self._triangles[i] = ((x0, x1, y0, y1), tris)
+        return tris
+
+    def forget_surfaces(self) -> None:
+        """Drop the cached yarn triangles (large on coupons) once the queries are done."""
+        self._triangles = {}
 
     # --- queries ----------------------------------------------------------------------------
     def columns(self, xy, yarns=None) -> Columns:
@@ -185,8 +206,9 @@ class Textile:
         probe = xy + np.array([0.7548776662, 0.5698402910]) * 1e-7 * max(self.cell.lx, self.cell.ly)
         rows = []
         odd = 0
+        region = (*(probe[:, 0].min(), probe[:, 0].max()), *(probe[:, 1].min(), probe[:, 1].max())) if len(probe) else None
         for i in range(len(self.yarns)) if yarns is None else yarns:
-            pidx, z = _vertical_hits(self.triangles(i), probe, self.resolution.spacing)
+            pidx, z = _vertical_hits(self.triangles(i, region), probe, self.resolution.spacing)
             order = np.lexsort((z, pidx))
             pidx, z = pidx[order], z[order]
             starts = np.flatnonzero(np.r_[True, pidx[1:] != pidx[:-1]]) if len(pidx) else np.zeros(0, int)
