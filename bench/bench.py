@@ -29,7 +29,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 SATIN = REPO.parent / "shared" / "reference" / "models" / "satin4.tg3"
 
-# name: (model, seed, repeats, method, ranks)
+# name: (model, seed, repeats (nx, ny[, "free": free edges]), method, ranks)
 CASES = {
     "satin4 1.0": ("satin4", 1.0, None, "penalty", (1, 2)),
     "satin4 0.5": ("satin4", 0.5, None, "penalty", (1, 2)),
@@ -39,6 +39,7 @@ CASES = {
     "orthogonal 0.5": ("orthogonal", 0.5, None, "penalty", (1, 2)),
     "orthogonal 0.5 augmented": ("orthogonal", 0.5, None, "augmented", (1,)),
     "satin4 4x4 0.25": ("satin4", 0.25, (4, 4), "penalty", (1, 2)),
+    "satin4 4x4 0.25 free edges": ("satin4", 0.25, (4, 4, "free"), "penalty", (1, 2)),
     "satin4 8x8 0.25": ("satin4", 0.25, (8, 8), "penalty", (2,)),
 }
 QUICK = ("satin4 1.0", "satin4 0.5", "satin4 0.25", "satin4 0.125", "orthogonal 0.5")
@@ -92,7 +93,7 @@ def one_case(name: str) -> dict:
 
     def read():
         t = load_model(SATIN) if model == "satin4" else build("orthogonal")
-        return tile(t, *repeats) if repeats else t
+        return tile(t, *repeats[:2], free_edges="free" in repeats) if repeats else t
 
     textile = stage("model", read)
     projected = stage("mesh", lambda: projected_mesh(textile, mesh, comm, log=None))

@@ -242,7 +242,7 @@ class _Triplets:
     def csr(self, values: np.ndarray) -> np.ndarray:
         """Summed values (constant part + these contact values) in the order of (indptr, indices)."""
         v = self._route(self.plan, np.asarray(values, np.float64))
-        out = np.bincount(self.positions, weights=v, minlength=len(self.indices))
+        out = np.bincount(self.positions, weights=v, minlength=len(self.indices)).astype(np.float64, copy=False)
         out += self.base  # in place: on a coupon each array of this size is 0.2 GB per rank
         return out.astype(PETSc.ScalarType, copy=False)
 
