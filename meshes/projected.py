@@ -63,9 +63,10 @@ class MeshOptions:
             raise TextileError(f"memory limit must be a positive size in GB, got {self.memory_limit!r}")
 
 
-# Memory of a run per unknown, measured by `make bench` (satin coupons, 3e5 dofs, 1 and 2 ranks:
-# 9.6 and 12.4 kB per dof with MUMPS' factor, gmsh's peak and the outputs), and per process.
-BYTES_PER_DOF = 12.5e3
+# Memory of a run per unknown, measured by `make bench` (satin coupons, summed peaks: 3.3e5 dofs on
+# 1 and 2 ranks 5.8 and 7.5 kB per dof, 1.3e6 dofs on 2 ranks 6.9 kB per dof, with MUMPS' factors
+# and the outputs), and per process.
+BYTES_PER_DOF = 8e3
 BYTES_PER_RANK = 0.3e9
 
 
