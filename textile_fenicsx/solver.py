@@ -11,11 +11,13 @@ is quadratic at fixed contact stiffness k, so each active-set step is one linear
   sparse map R_i (yarn dofs -> unknowns, one 1 per row) applies it, K = sum R_i^T A_i R_i;
 - contact: for each adjacent pair (upper u, lower l) the matrix M_p = k(g) u v on u's overlap cells
   and the map T_p (unknowns -> w_u - w_l at u's overlap dofs, exact point correspondence) add
-  T_p^T M_p T_p;
+  T_p^T M_p T_p; T_p is never stored as a matrix: each entry of M_p goes to four places of K, and
+  the gaps come from one gather of the unknowns the overlaps need (a pair's data live on its
+  overlap only: per-pair whole-yarn objects cost gigabytes on coupons with a thousand pairs);
 - the common vertical translation is removed as a multiplier on the area-weighted mean of all w
   would remove it, but sparsely: net load spread over the area, one unknown pinned, the solution
   shifted to zero mean (independent of numbering and partition);
-- K is one matrix built from triplets (plates, pin, contact pairs), with indices mapped once:
+- K is one matrix whose CSR pattern is built once from triplets (plates, pin, contact pairs):
   each step only recomputes the contact values; MUMPS LDL^T (symmetric) on it, whose sparsity is
   fixed, so later steps refactorise numerically only.
 The contact state is iterated until no sign of the gap changes (cap, cycle detection). The
