@@ -103,6 +103,7 @@ def test_outputs_complete_and_corrected_tg3_reads_back(satin_run, mpi_tmp_path):
     ("mesh_convergence", {"TEXTILE_FENICSX_SEEDS": "2.0 1.0"}),
     ("parameter_study", {"TEXTILE_FENICSX_SEED": "1.0"}),
     ("plate_c0ip", {}),
+    ("coupon_edges", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_REPEATS": "2"}),
 ])
 def test_demos_run_on_coarse_seeds(demo, env, tmp_path):
     run_env = dict(os.environ, TEXTILE_FENICSX_OUT=str(tmp_path / demo), **env)
