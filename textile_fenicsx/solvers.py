@@ -13,10 +13,14 @@ DIRECT_LU = {
 # The contact problem's matrix is symmetric (plates, contact T^T M T, the pinning multiplier):
 # MUMPS' symmetric-indefinite LDL^T stores half the factor and factorises ~15 % faster. ICNTL(24):
 # detect null pivots, so a singular system (a yarn held by nothing) is reported, not solved quietly.
+# ICNTL(7) = 2, AMF ordering: Debian's MUMPS has no METIS/SCOTCH and its automatic choice is PORD;
+# on a 3.3e5-dof satin coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s serial
+# (3.3 vs 5.0 s on 2 ranks) with 4 % fewer factor entries; on the unit cell (2e4 dofs) 0.1 vs 0.3 s.
 DIRECT_LDLT = {
     "ksp_type": "preonly",
     "pc_type": "cholesky",
     "pc_factor_mat_solver_type": "mumps",
+    "mat_mumps_icntl_7": 2,
     "mat_mumps_icntl_24": 1,
 }
 
