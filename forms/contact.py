@@ -26,3 +26,13 @@ def contact_mass(u, v, g, Ec, Et, dx, shift=0):
 def contact_pressure(v, g, Ec, Et, lam, dx):
     """Linear form of the augmented-Lagrangian pressure lam [N/mm^2] where contact is active."""
     return ufl.conditional(ufl.lt(g - lam / Ec, 0), lam, 0) * v * dx
+
+
+def contact_energy(g, Ec, Et, lam, dx):
+    """The contact energy whose Newton (active-set) steps the two forms above give: with the
+    pressure lam (0 for the plain penalty), 1/2 Ec g^2 - lam g where g < lam / Ec, and the apart
+    branch 1/2 Et g^2 shifted to meet it there (convex, C1 up to Et)."""
+    at = lam / Ec
+    penetrating = 0.5 * Ec * g**2 - lam * g
+    apart = 0.5 * Et * (g**2 - at**2) - 0.5 * lam * at
+    return ufl.conditional(ufl.lt(g - at, 0), penetrating, apart) * dx

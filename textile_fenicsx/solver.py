@@ -20,9 +20,12 @@ is quadratic at fixed contact stiffness k, so each active-set step is one linear
 - K is one matrix whose CSR pattern is built once from triplets (plates, pin, contact pairs):
   each step only recomputes the contact values; MUMPS LDL^T (symmetric) on it, whose sparsity is
   fixed, so later steps refactorise numerically only.
-The contact state is iterated until no sign of the gap changes (cap, cycle detection). The
-augmented-Lagrangian option adds Uzawa updates of a contact pressure until the penetration is below
-a tolerance that does not depend on Ec.
+The contact state (the sign of g - lam/Ec at the contact forms' quadrature points, which alone
+decide the matrix) is iterated until none changes: each step is the Newton step of the convex
+energy at the current states, halved until the energy falls (undamped, the active set cycled
+at hard penalties, Ec >= 1e6); a cap and a cycle check (a repeated state without a fall of
+energy) stop it. The augmented-Lagrangian option adds Uzawa updates of a contact
+pressure until the penetration is below a tolerance that does not depend on Ec.
 """
 
 import hashlib
@@ -39,7 +42,7 @@ from petsc4py import PETSc
 import dolfinx
 import dolfinx.fem.petsc
 from textile_fenicsx.errors import TextileError, check_positive
-from textile_fenicsx.forms import c0ip_bending, contact_mass, contact_pressure, foundation, load, tension
+from textile_fenicsx.forms import c0ip_bending, contact_energy, contact_mass, contact_pressure, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import REAL, MidSurfaces
 from textile_fenicsx.meshes.projected import release_freed_memory
 from textile_fenicsx.solvers import DIRECT_LDLT, SolverError
@@ -390,9 +393,12 @@ class ContactProblem:
             if u not in self._scratch:
                 g_fn, lam_fn, g0_fn = (dolfinx.fem.Function(yu.V, name=n) for n in ("gap", "pressure", "gap0"))
                 # -g at the contact forms' quadrature points (degree 4); compiled on every rank (collective)
-                self._scratch[u] = (g_fn, lam_fn, g0_fn, dolfinx.fem.Expression(-g_fn, quadrature))
+                # g - lam / Ec there: its sign is the contact state the forms integrate with
+                shifted = g_fn - lam_fn / dolfinx.fem.Constant(yu.mesh, float(self._penalty))
+                self._scratch[u] = (g_fn, lam_fn, g0_fn, dolfinx.fem.Expression(-g_fn, quadrature),
+                                    dolfinx.fem.Expression(shifted, quadrature))
                 cell_order[u] = np.argsort(yu.parent_cells)
-            g_fn, lam_fn, g0_fn, _ = self._scratch[u]
+            g_fn, lam_fn, g0_fn, *_ = self._scratch[u]
             # the pair's cells on u's submesh
             k = np.searchsorted(yu.parent_cells, cells, sorter=cell_order[u])
             sub_cells = np.sort(cell_order[u][k]).astype(np.int32)
@@ -405,7 +411,8 @@ class ContactProblem:
             # the stiffness acting on the initial gap
             L = dolfinx.fem.form(contact_pressure(v, g_fn, Ec, Et, lam_fn, dx)
                                  - contact_mass(g0_fn, v, g_fn, Ec, Et, dx, shift=lam_fn / Ec))
-            pen_form = dolfinx.fem.form(ufl.max_value(-g_fn, 0) * dx)
+            pen_form = dolfinx.fem.form(ufl.max_value(-g_fn, 0) * dx(metadata={"quadrature_degree": 4}))
+            energy = dolfinx.fem.form(contact_energy(g_fn, Ec, Et, lam_fn, dx))
             # the overlap's dofs (owned and ghost) on u and on l (the same points)
             dofs = self.ms.contact_dofs[(u, l)]
             du, dl = dofs[:, 0], dofs[:, 1]
@@ -426,7 +433,7 @@ class ContactProblem:
             del i, j, ui, uj, li, lj
             owned = np.flatnonzero(du < n_owned)
             self.pairs.append(dict(pair=(u, l), dofs=du, owned=owned, g0=g0, g=g0.copy(), lam=np.zeros(len(du)),
-                                   cu=cu, cl=cl, nnz=nnz, a=a, L=L, pen_form=pen_form, M=M,
+                                   cu=cu, cl=cl, nnz=nnz, a=a, L=L, pen_form=pen_form, energy=energy, M=M,
                                    cells=sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]))
         self._triplets.freeze(np.concatenate(coo_rows) if coo_rows else np.zeros(0, np.int64),
                               np.concatenate(coo_cols) if coo_cols else np.zeros(0, np.int64))
@@ -443,12 +450,26 @@ class ContactProblem:
 
     def _fill(self, pr) -> None:
         """Put the pair's gap and pressure into its upper yarn's scratch Functions."""
-        g_fn, lam_fn, g0_fn, _ = self._scratch[pr["pair"][0]]
+        g_fn, lam_fn, g0_fn, *_ = self._scratch[pr["pair"][0]]
         g_fn.x.array[pr["dofs"]] = pr["g"]
         lam_fn.x.array[pr["dofs"]] = pr["lam"]
         g0_fn.x.array[pr["dofs"]] = pr["g0"]
 
     # --- iteration ------------------------------------------------------------------------
+
+    def _energy(self, x: PETSc.Vec) -> float:
+        """The energy at x (plates, pin and contact, with the current pressures); the gaps are
+        updated to x. The active-set steps are Newton steps on it: it decides their damping."""
+        self._update_gaps(x)
+        y = x.duplicate()
+        self._A_fixed.mult(x, y)
+        plates = 0.5 * x.dot(y) - self.b_plate.dot(x)
+        y.destroy()
+        contact = 0.0
+        for pr in self.pairs:
+            self._fill(pr)
+            contact += dolfinx.fem.assemble_scalar(pr["energy"])
+        return plates + self.comm.allreduce(contact, op=MPI.SUM)
 
     def _update_gaps(self, x: PETSc.Vec):
         """g = g0 + w_u - w_l at every overlap dof of this rank (ghosts included)."""
@@ -459,7 +480,15 @@ class ContactProblem:
             pr["g"] = pr["g0"] + xs[pr["gu"]] - xs[pr["gl"]]
 
     def _state(self) -> np.ndarray:
-        parts = [pr["g"][pr["owned"]] < pr["lam"][pr["owned"]] / self._penalty for pr in self.pairs]
+        """The contact state where the forms integrate: g < lam / Ec at each quadrature point of
+        the pairs' owned cells (the matrix depends on these alone, so when none changes the
+        iteration has reached its fixed point)."""
+        parts = []
+        for pr in self.pairs:
+            if len(pr["cells"]):
+                self._fill(pr)
+                u = pr["pair"][0]
+                parts.append(self._scratch[u][4].eval(self.ms.yarns[u].mesh, pr["cells"]).ravel() < 0)
         return np.concatenate(parts) if parts else np.zeros(0, bool)
 
     def max_penetration(self) -> float:
@@ -517,6 +546,10 @@ class ContactProblem:
         K.setPreallocationCSR((t.indptr, t.indices, np.zeros(len(t.indices), PETSc.ScalarType)))
         K.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         self.K = K
+        A = K.duplicate()  # the constant part alone (plates and pin), for the energy
+        A.setValuesCSR(t.indptr, t.indices, t.base.astype(PETSc.ScalarType), addv=PETSc.InsertMode.INSERT_VALUES)
+        A.assemble()
+        self._A_fixed = A
 
     def solve(self) -> Solution:
         opts, comm = self.options, self.comm
@@ -531,7 +564,8 @@ class ContactProblem:
         ksp.setFromOptions()
         x = self.K.createVecRight()
         x.set(0.0)
-        self._update_gaps(x)
+        x_old, step = x.duplicate(), x.duplicate()
+        energy = self._energy(x)  # updates the gaps
         history, seen = [], {}
         state = self._state()
         converged, it, updates, reason = False, 0, 0, ""
@@ -548,6 +582,7 @@ class ContactProblem:
                 r.destroy()
                 ksp.setOperators(K)
                 t1 = time.perf_counter()
+                x.copy(x_old)
                 ksp.solve(b, x)
                 t_factor += time.perf_counter() - t1
                 ksp_reason = ksp.getConvergedReason()
@@ -561,25 +596,44 @@ class ContactProblem:
                 if not np.isfinite(x.norm()):
                     raise SolverError(f"the solution is not finite (NaN or Inf) at contact iteration {it}; "
                                       f"iteration log: {history}")
-                self._update_gaps(x)
+                # damping: the step is the Newton step of the (convex) energy at the current
+                # contact states; where it raises the energy, halve it (undamped, the active set
+                # can cycle between states)
+                alpha, trial = 1.0, self._energy(x)
+                if trial > energy + 1e-10 * (abs(energy) + abs(trial)):
+                    x.copy(step)
+                    step.axpy(-1.0, x_old)
+                    while trial > energy + 1e-10 * (abs(energy) + abs(trial)):
+                        alpha /= 2
+                        if alpha < 1e-12:
+                            raise SolverError(f"the damped contact step found no lower energy at iteration {it} "
+                                              f"(energy {energy:.6e}); iteration log: {history}")
+                        x_old.copy(x)
+                        x.axpy(alpha, step)
+                        trial = self._energy(x)
+                energy = trial  # the gaps are at x
                 new = self._state()
                 changed = comm.allreduce(int(np.sum(new != state)), op=MPI.SUM)
                 active = comm.allreduce(int(np.sum(new)), op=MPI.SUM)
                 pen = self.max_penetration()
                 line = dict(iteration=it, active=active, changed=changed, max_penetration=pen,
-                            residual=res, time_s=time.perf_counter() - t0)
+                            residual=res, step=alpha, energy=energy, time_s=time.perf_counter() - t0)
                 history.append(line)
                 if self.log:
                     self.log(f"contact it {it:3d}: active {active:6d}, changed {changed:5d}, "
-                             f"max penetration {pen:.3e} mm, residual {res:.2e}, {line['time_s']:.2f} s")
+                             f"max penetration {pen:.3e} mm, residual {res:.2e}"
+                             + (f", step {alpha:.3g}" if alpha < 1 else "") + f", {line['time_s']:.2f} s")
                 key = hashlib.sha1(np.packbits(new).tobytes()).hexdigest()
                 digest = hashlib.sha1("".join(comm.allgather(key)).encode()).hexdigest()  # the global state
                 state = new
-                if changed == 0 and inner > 0:
+                if changed == 0 and inner > 0 and alpha == 1.0:
                     converged, reason = True, "converged: no contact state changed"
                     break
-                if digest in seen and seen[digest] < it - 1 and changed > 0:
-                    reason = f"the contact states cycle: iteration {it} repeats iteration {seen[digest]}"
+                # a state seen before is a cycle only if the energy has not fallen since (the
+                # damped steps lower it every time they move)
+                if digest in seen and seen[digest][0] < it - 1 and changed > 0 \
+                        and energy >= seen[digest][1] - 1e-10 * abs(energy):
+                    reason = f"the contact states cycle: iteration {it} repeats iteration {seen[digest][0]}"
                     # augmented: the inner active set need not settle exactly (its flips are dofs
                     # at zero gap); the Uzawa updates go on and the penetration decides
                     converged = opts.method == "augmented"
@@ -587,7 +641,7 @@ class ContactProblem:
                         self.log(f"contact: {reason} ({changed} states), "
                                  + ("updating the pressure" if converged else "stopping"))
                     break
-                seen[digest] = it
+                seen[digest] = (it, energy)
             else:
                 converged = False
                 reason = (f"the contact iteration reached its cap of {opts.max_iterations} steps with "
@@ -605,11 +659,13 @@ class ContactProblem:
             for pr in self.pairs:  # Uzawa: lam <- max(0, lam - Ec g)
                 pr["lam"] = np.maximum(0.0, pr["lam"] - self._penalty * pr["g"])
             state, seen = self._state(), {}  # new multipliers: earlier states say nothing about cycling
+            energy = self._energy(x)  # and a new energy
             if self.log:
                 self.log(f"augmented Lagrangian update {updates}: max penetration {pen:.3e} mm")
         ksp.destroy()  # with the factors
-        self.K.destroy()  # rebuilt from the pattern if solve() is called again
-        self.K = None
+        for obj in (self.K, self._A_fixed, x_old, step):  # K and A are rebuilt if solve() is called again
+            obj.destroy()
+        self.K = self._A_fixed = None
         release_freed_memory()  # MUMPS' factors back to the system before the outputs are made
         if self.free_translation:  # zero area-weighted mean (the gaps do not change)
             ones = x.duplicate()
