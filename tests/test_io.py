@@ -256,18 +256,21 @@ def mutated(data, text: str, splice: int, delete: int) -> str:
     return text[:i] + text[i + data.draw(st.integers(1, delete)):]
 
 
+def read_only_raising(allowed, reader, path, text):
+    """Write text to path and read it: `allowed` errors are the answer; any other escapes."""
+    path.write_text(text)
+    try:
+        reader(path)
+    except allowed:
+        pass
+
+
 @pytest.mark.serial
 @settings(max_examples=FUZZ, deadline=None, suppress_health_check=SUPPRESS)
 @given(data=st.data())
 def test_tg3_reader_raises_only_format_errors(data, satin_tg3, tmp_path):
     # Cut or corrupt the file anywhere: the reader answers with FormatError, nothing else.
-    text = mutated(data, satin_tg3, splice=8, delete=200)
-    path = tmp_path / "fuzz.tg3"
-    path.write_text(text)
-    try:
-        read_tg3(path)
-    except FormatError:
-        pass
+    read_only_raising(FormatError, read_tg3, tmp_path / "fuzz.tg3", mutated(data, satin_tg3, splice=8, delete=200))
 
 
 @pytest.mark.serial
@@ -319,10 +322,4 @@ section = {type = "power_ellipse", width = 1.2, height = 0.25, power = 0.6}
 def test_toml_reader_raises_only_format_errors(data, tmp_path):
     # Hand-written TOML cut, spliced with any characters, or with a span deleted: a FormatError
     # (or TextileError naming a bad value), or a valid model; never KeyError, IndexError, ...
-    text = mutated(data, TOML_MODEL, splice=6, delete=40)
-    path = tmp_path / "fuzz.toml"
-    path.write_text(text)
-    try:
-        load_model(path)
-    except TextileError:
-        pass
+    read_only_raising(TextileError, load_model, tmp_path / "fuzz.toml", mutated(data, TOML_MODEL, splice=6, delete=40))

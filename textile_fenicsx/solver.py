@@ -280,6 +280,8 @@ class ContactProblem:
         self._plates(loads or {}, foundation_stiffness)
         self._mean_constraint(foundation_stiffness)
         self._contact_setup()
+        for vec in self.__dict__.pop("_parent_vecs", {}).values():
+            vec.destroy()
         self.times["assemble"] = time.perf_counter() - t0
 
     def _parents(self, y, A: PETSc.Mat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -292,16 +294,19 @@ class ContactProblem:
 
     def _column_parents(self, y, cols: np.ndarray) -> np.ndarray:
         """Global parent dofs of yarn y's dofs given by their global index in y's space (any rank's)."""
-        imap = y.V.dofmap.index_map
-        owned = PETSc.Vec().createMPI((imap.size_local, imap.size_global), comm=self.comm)
-        owned.getArray()[:] = self._parent_global[y.to_parent[:imap.size_local]]
+        cache = self.__dict__.setdefault("_parent_vecs", {})  # per yarn: its owned dofs' parents
+        if y.yarn not in cache:
+            imap = y.V.dofmap.index_map
+            cache[y.yarn] = PETSc.Vec().createMPI((imap.size_local, imap.size_global), comm=self.comm)
+            cache[y.yarn].getArray()[:] = self._parent_global[y.to_parent[:imap.size_local]]
+        owned = cache[y.yarn]
         wanted, back = np.unique(cols, return_inverse=True)
         got = PETSc.Vec().createSeq(len(wanted), comm=PETSc.COMM_SELF)
         index = PETSc.IS().createGeneral(wanted.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
         scatter = PETSc.Scatter().create(owned, index, got, None)
         scatter.scatter(owned, got, addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
         parents = np.rint(got.getArray()).astype(np.int64)[back]
-        for obj in (owned, got, index, scatter):
+        for obj in (got, index, scatter):
             obj.destroy()
         return parents
 
