@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SATIN = REPO.parent / "shared" / "reference" / "models" / "satin4.tg3"
+SATIN = REPO / "reference" / "models" / "satin4.tg3"
 
 # name: (model, seed, repeats (nx, ny[, "free": free edges]), method, ranks)
 CASES = {

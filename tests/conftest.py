@@ -14,7 +14,7 @@ import pytest
 from mpi4py import MPI
 
 REPO = Path(__file__).resolve().parent.parent
-REFERENCE = Path(os.environ.get("TEXTILE_FENICSX_REFERENCE", REPO.parent / "shared" / "reference"))
+REFERENCE = Path(os.environ.get("TEXTILE_FENICSX_REFERENCE", REPO / "reference"))
 
 
 @pytest.hookimpl(trylast=True)

@@ -67,7 +67,7 @@ def test_tg3_round_trip_is_identical(make, tmp_path):
 
 @pytest.mark.serial
 def test_written_tg3_has_what_texgen_needs(tmp_path):
-    # shared/reference/README.md: mandatory yarn attributes, 6 domain planes, per-node polygon
+    # reference/README.md: mandatory yarn attributes, 6 domain planes, per-node polygon
     # sections for InterpNode yarns, periodic last node = first + repeat.
     t = corrected_style_textile()
     write_tg3(t, tmp_path / "m.tg3")

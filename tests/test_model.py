@@ -148,7 +148,7 @@ def test_queries_split_over_ranks_agree_with_serial(comm):
     assert split["thickness"] == serial["thickness"]
 
 
-# --- reference: TexGen's own numbers (shared/reference/texgen_measurements.json) ------------
+# --- reference: TexGen's own numbers (reference/texgen_measurements.json) ------------
 
 @pytest.fixture(scope="module")
 def reference(reference_dir):

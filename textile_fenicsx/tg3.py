@@ -6,7 +6,7 @@ and the CDomainPlanes box. Elements without geometry (fibre distributions, secti
 own pattern description) are skipped; anything else unknown is an error naming it.
 
 Writing produces a plain CTextile that TexGen 3.14 reads back without rebuilding it (the facts in
-shared/reference/README.md): mandatory yarn attributes, CDomainPlanes, and each yarn's own
+reference/README.md): mandatory yarn attributes, CDomainPlanes, and each yarn's own
 interpolation and sections (per-node polygons for corrected yarns).
 """
 
