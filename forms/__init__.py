@@ -12,8 +12,9 @@ from textile_fenicsx.forms.bending import (
     moment,
 )
 
-from textile_fenicsx.forms.contact import contact_energy, contact_mass, contact_pressure, stiffness
+from textile_fenicsx.forms.contact import contact_energy, contact_forms, penetration_volume, stiffness
 from textile_fenicsx.forms.membrane import foundation, load, tension
 
-__all__ = ["c0ip_bending", "clamped_slope_nitsche", "contact_energy", "contact_mass", "contact_pressure", "curvature",
-           "fibre_frame", "foundation", "load", "moment", "stiffness", "tension"]
+__all__ = ["c0ip_bending", "clamped_slope_nitsche", "contact_energy", "contact_forms", "curvature",
+           "fibre_frame", "foundation", "load", "moment", "penetration_volume", "stiffness",
+           "tension"]

@@ -2,37 +2,42 @@
 
 With the upper yarn u and the lower yarn l over their overlap, the gap is
     g = (z_u - t_u/2) - (z_l + t_l/2)
-and the energy 1/2 k(g) g^2 with k = Ec where g < 0 (penetration) and Et where g >= 0, integrated
-over the overlap area. Both branches vanish with zero slope at g = 0, so the energy is C1 and its
-Newton iteration at fixed k is an active-set method.
-
-The forms are written on the upper yarn's mid-surface; the lower yarn's values at the same points
-enter through the (exact) dof correspondence of the shared projected mesh.
+and the contact energy is written once, as a function of g; its residual and Jacobian are its
+derivatives (`ufl.derivative` with respect to the gap Function):
+- penalty (the paper's): 1/2 k(g) g^2, k = Ec where g < 0 (penetration) and Et where g >= 0. Both
+  branches vanish with zero slope at g = 0, so the energy is convex and C1 and Newton on it is an
+  active-set method;
+- exact: 1/2 Et g^2 only (the spring that holds yarns together where they are apart); penetration
+  is excluded by the constraint g >= 0 at the nodes, which the solver imposes itself.
+The forms live on the upper yarn's mid-surface; the lower yarn's values at the same points enter
+through the (exact) dof correspondence of the shared projected mesh.
 """
 
 import ufl
 
-
-def stiffness(g, Ec, Et, shift=0):
-    """k(g): Ec where g < shift (penetration; shift = lambda/Ec for augmented Lagrangian), else Et."""
-    return ufl.conditional(ufl.lt(g - shift, 0), Ec, Et)
+# g is P2, the energy's density of degree 4 (the conditional does not raise it)
+QUADRATURE = {"quadrature_degree": 4}
 
 
-def contact_mass(u, v, g, Ec, Et, dx, shift=0):
-    """Bilinear k(g) u v on the overlap: the contact stiffness acting on the gap's variation."""
-    return stiffness(g, Ec, Et, shift) * u * v * dx
+def stiffness(g, Ec, Et):
+    """k(g): Ec where g < 0 (penetration), else Et [N/mm^3]."""
+    return ufl.conditional(ufl.lt(g, 0), Ec, Et)
 
 
-def contact_pressure(v, g, Ec, Et, lam, dx):
-    """Linear form of the augmented-Lagrangian pressure lam [N/mm^2] where contact is active."""
-    return ufl.conditional(ufl.lt(g - lam / Ec, 0), lam, 0) * v * dx
+def contact_energy(g, Ec, Et, dx, exact: bool = False):
+    """Contact energy over the overlap dx [N mm]: 1/2 k(g) g^2 (penalty) or 1/2 Et g^2 (exact)."""
+    k = Et if exact else stiffness(g, Ec, Et)
+    return 0.5 * k * g**2 * dx(metadata=QUADRATURE)
 
 
-def contact_energy(g, Ec, Et, lam, dx):
-    """The contact energy whose Newton (active-set) steps the two forms above give: with the
-    pressure lam (0 for the plain penalty), 1/2 Ec g^2 - lam g where g < lam / Ec, and the apart
-    branch 1/2 Et g^2 shifted to meet it there (convex, C1 up to Et)."""
-    at = lam / Ec
-    penetrating = 0.5 * Ec * g**2 - lam * g
-    apart = 0.5 * Et * (g**2 - at**2) - 0.5 * lam * at
-    return ufl.conditional(ufl.lt(g - at, 0), penetrating, apart) * dx
+def contact_forms(g, Ec, Et, dx, exact: bool = False):
+    """(energy, residual, Jacobian) of the contact energy with respect to the gap Function g."""
+    energy = contact_energy(g, Ec, Et, dx, exact)
+    V = g.function_space
+    residual = ufl.derivative(energy, g, ufl.TestFunction(V))
+    return energy, residual, ufl.derivative(residual, g, ufl.TrialFunction(V))
+
+
+def penetration_volume(g, dx):
+    """The volume of interpenetration the gap field says: the integral of max(0, -g) [mm^3]."""
+    return ufl.max_value(-g, 0) * dx(metadata=QUADRATURE)

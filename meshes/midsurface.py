@@ -12,6 +12,7 @@ Across the cell: for every yarn, its dofs on the right/top sides paired with the
 on the left/bottom sides (global numbering, so pairs that straddle ranks are found too).
 """
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +22,8 @@ from scipy.spatial import cKDTree
 import dolfinx
 from textile_fenicsx.errors import GeometryError
 from textile_fenicsx.meshes.projected import GHOST, ProjectedMesh
+
+log = logging.getLogger(__name__)
 
 REAL, STRIP = 1, 2
 
@@ -56,6 +59,7 @@ class MidSurfaces:
     yarns: list = field(default_factory=list)     # MidSurface per yarn
     contact: dict = field(default_factory=dict)   # (upper, lower) -> local parent cells
     contact_dofs: dict = field(default_factory=dict)  # (upper, lower) -> (n, 2) submesh dof pairs
+    contact_margin: dict = field(default_factory=dict)  # (upper, lower) -> (n,) gap the P2 field overstates [mm]
     periodic: list = field(default_factory=list)  # per yarn: (n, 2) global parent dofs (image, source)
 
 
@@ -63,7 +67,7 @@ def _parent_space(msh):
     return dolfinx.fem.functionspace(msh, ("Lagrange", 2))
 
 
-def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
+def mid_surfaces(projected: ProjectedMesh) -> MidSurfaces:
     """Sample z0, t and d of every yarn on its footprint and build the coupling structure."""
     msh = projected.mesh
     comm = msh.comm
@@ -107,12 +111,12 @@ def mid_surfaces(projected: ProjectedMesh, log=print) -> MidSurfaces:
         # mean z0 per parent cell, for the stacking order
         cell_dofs = Vs.dofmap.list
         mean_z0[i] = dict(zip(emap.tolist(), z0.x.array[cell_dofs].mean(axis=1).tolist()))
-    textile.forget_surfaces()  # sampled: the yarns' triangles are not needed by the later stages
     _contact_structure(out, mean_z0)
+    _gap_margins(out)
+    textile.forget_surfaces()  # sampled: the yarns' triangles are not needed by the later stages
     _periodic_structure(out)
-    if log is not None and comm.rank == 0:
-        dofs = [y.V.dofmap.index_map.size_global for y in out.yarns]
-        log(f"midsurfaces: {len(dofs)} yarns, {sum(dofs)} dofs, {len(out.contact)} contact pairs")
+    dofs = [y.V.dofmap.index_map.size_global for y in out.yarns]
+    log.info("midsurfaces: %d yarns, %d dofs, %d contact pairs", len(dofs), sum(dofs), len(out.contact))
     return out
 
 
@@ -180,6 +184,54 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
         if len(parent) and (np.any(ms.yarns[u].to_parent[du] != parent) or np.any(ms.yarns[l].to_parent[dl] != parent)):
             raise GeometryError(f"contact of yarns {u} and {l}: a shared node is missing from one of them")
         ms.contact_dofs[(u, l)] = np.column_stack((du, dl)).astype(np.int64).reshape(-1, 2)
+
+
+# Points inside each cell where the P2 gap field is compared with the model's own rays: the centroid
+# and the centroids of the three corner sub-triangles (reference coordinates).
+MARGIN_POINTS = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]])
+
+
+def _gap_margins(ms: MidSurfaces) -> None:
+    """Per contact dof, how much the P2 gap field overstates the model's gap nearby [mm] (>= 0).
+
+    z0 and t are exact at the dofs, but between them the yarns' surfaces are not quadratic (near a
+    yarn's flank its thickness falls like a square root), so a P2 gap that is >= 0 at every node
+    can hide an overlap between them. In every cell of a pair the model's rays are cast at four
+    interior points and compared with the P2 gap there; a node's margin is the largest shortfall
+    over the cells around it, of any pair, on any rank (a reverse scatter with MAX), and the solver
+    keeps the node's gap >= its margin."""
+    import basix
+    from petsc4py import PETSc
+
+    V = ms.V
+    msh = V.mesh
+    textile = ms.projected.textile
+    basis = basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, 2,
+                                 basix.LagrangeVariant.gll_warped).tabulate(0, MARGIN_POINTS)[0, :, :, 0]
+    margin = dolfinx.fem.Function(V)
+    values = margin.x.array
+    X = msh.geometry.x
+    for (u, l), cells in ms.contact.items():
+        if len(cells) == 0:
+            continue
+        yu, yl = ms.yarns[u], ms.yarns[l]
+        g0 = np.zeros(len(values))  # the pair's nodal gap on the parent dofs of its cells
+        du, dl = ms.contact_dofs[(u, l)][:, 0], ms.contact_dofs[(u, l)][:, 1]
+        g0[yu.to_parent[du]] = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
+        dofs = V.dofmap.list[cells]                       # (c, 6)
+        interp = g0[dofs] @ basis.T                        # (c, 4): the P2 gap at the points
+        corners = X[msh.geometry.dofmap[cells]][:, :, :2]  # (c, 3, 2)
+        ref = MARGIN_POINTS
+        xy = (corners[:, None, 0] + ref[None, :, :1] * (corners[:, None, 1] - corners[:, None, 0])
+              + ref[None, :, 1:] * (corners[:, None, 2] - corners[:, None, 0])).reshape(-1, 2)
+        bot, top = textile.columns(xy, yarns=[u, l]).envelope(len(textile.yarns))
+        exact = (bot[:, u] - top[:, l]).reshape(len(cells), -1)
+        shortfall = np.nan_to_num(interp - exact, nan=0.0).max(axis=1).clip(min=0.0)
+        np.maximum.at(values, dofs, shortfall[:, None])
+    margin.x.petsc_vec.ghostUpdate(addv=PETSc.InsertMode.MAX_VALUES, mode=PETSc.ScatterMode.REVERSE)
+    margin.x.scatter_forward()
+    for key, pairs in ms.contact_dofs.items():
+        ms.contact_margin[key] = values[ms.yarns[key[0]].to_parent[pairs[:, 0]]].copy()
 
 
 def _check_stacking(ms: MidSurfaces, apart: dict) -> None:

@@ -15,6 +15,7 @@ going to the copy of its yarns whose centreline is nearest. Every repeat then ha
 and a periodic coupon's solution repeats the unit cell's to round-off.
 """
 
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -27,6 +28,8 @@ from scipy.spatial import cKDTree
 import dolfinx
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.textile import Textile
+
+log = logging.getLogger(__name__)
 
 # How fast element size may grow away from narrow regions (size change per unit distance).
 GROWTH = 1.0
@@ -494,22 +497,22 @@ def release_freed_memory() -> None:
 
 
 def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
-                   comm: MPI.Comm = MPI.COMM_WORLD, log=print) -> ProjectedMesh:
+                   comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
     """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm`."""
     warnings = check_slopes(textile, options)
     check_memory(textile, options, comm.size)
-    return _mesh(textile, textile.cell, options, comm, log, warnings)
+    return _mesh(textile, textile.cell, options, comm, warnings)
 
 
 def plate_mesh(cell, seed: float, comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
     """The periodic cell alone, meshed like a projected mesh (ghost strip included), as if one
     plate (index 0) covered it: for verification problems."""
-    pm = _mesh(None, cell, MeshOptions(seed), comm, None, [])
+    pm = _mesh(None, cell, MeshOptions(seed), comm, [])
     pm.coverage = {t: (0,) for t in pm.coverage}
     return pm
 
 
-def _mesh(textile, cell, options, comm, log, warnings) -> ProjectedMesh:
+def _mesh(textile, cell, options, comm, warnings) -> ProjectedMesh:
     import gmsh
 
     start = time.perf_counter()
@@ -561,8 +564,6 @@ def _mesh(textile, cell, options, comm, log, warnings) -> ProjectedMesh:
     stats.update(cells=comm.allreduce(int(real), op=MPI.SUM),
                  strip_cells=msh.topology.index_map(2).size_global - comm.allreduce(int(real), op=MPI.SUM),
                  seed_mm=options.seed, time_s=time.perf_counter() - start, warnings=warnings)
-    if log is not None and comm.rank == 0:
-        log(f"mesh: seed {options.seed:g} mm: {stats['cells']} cells, {stats['nodes']} nodes, "
-            f"{stats['regions']} regions, min angle {stats['min_angle_deg']:.1f} deg, "
-            f"{stats['time_s']:.2f} s")
+    log.info("mesh: seed %g mm: %d cells, %d nodes, %d regions, min angle %.1f deg, %.2f s", options.seed,
+             stats["cells"], stats["nodes"], stats["regions"], stats["min_angle_deg"], stats["time_s"])
     return ProjectedMesh(msh, cell_tags, coverage, textile, options, stats, cell)

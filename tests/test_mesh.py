@@ -22,7 +22,7 @@ def satin():
 
 @pytest.fixture(scope="module")
 def satin_05():
-    ms = mid_surfaces(projected_mesh(satin(), MeshOptions(0.5), log=None), log=None)
+    ms = mid_surfaces(projected_mesh(satin(), MeshOptions(0.5)))
     return ms, mesh_statistics(ms)
 
 
@@ -94,8 +94,8 @@ def test_contact_pairs_share_points_and_follow_the_weave(satin_05):
 def test_serial_and_parallel_meshes_agree():
     # The same textile meshed on each rank alone and across all ranks: same global counts, same fields.
     t = satin()
-    alone = mid_surfaces(projected_mesh(t, MeshOptions(1.0), MPI.COMM_SELF, log=None), log=None)
-    shared = mid_surfaces(projected_mesh(t, MeshOptions(1.0), MPI.COMM_WORLD, log=None), log=None)
+    alone = mid_surfaces(projected_mesh(t, MeshOptions(1.0), MPI.COMM_SELF))
+    shared = mid_surfaces(projected_mesh(t, MeshOptions(1.0), MPI.COMM_WORLD))
     a, b = alone.projected.stats, shared.projected.stats
     assert (a["cells"], a["nodes"]) == (b["cells"], b["nodes"])
     for ya, yb in zip(alone.yarns, shared.yarns):
@@ -109,7 +109,7 @@ def test_serial_and_parallel_meshes_agree():
 @pytest.mark.mpi
 def test_orthogonal_weave_meshes():
     t = build("orthogonal")
-    ms = mid_surfaces(projected_mesh(t, MeshOptions(0.5), log=None), log=None)
+    ms = mid_surfaces(projected_mesh(t, MeshOptions(0.5)))
     stats = mesh_statistics(ms)
     assert len(stats["yarns"]) == 18 and stats["cells"] > 1000
     for y in stats["yarns"]:
@@ -124,7 +124,7 @@ def test_too_steep_binder_is_refused(reference_dir):
     # TexGen's orthogonal weave drops its binders vertically: the method cannot take them.
     t = read_tg3(reference_dir / "models" / "ortho.tg3")
     with pytest.raises(GeometryError) as err:
-        projected_mesh(t, MeshOptions(0.5), log=None)
+        projected_mesh(t, MeshOptions(0.5))
     msg = str(err.value)
     assert "yarn 2" in msg and "too steep" in msg and "slope" in msg and "exceeds max_slope 10" in msg
 
@@ -134,7 +134,7 @@ def test_bad_seeds_are_refused():
     with pytest.raises(TextileError, match="seed must be a positive size"):
         MeshOptions(-0.5)
     with pytest.raises(TextileError, match="larger than the cell"):
-        projected_mesh(build("plain"), MeshOptions(5.0), log=None)
+        projected_mesh(build("plain"), MeshOptions(5.0))
 
 
 @pytest.mark.serial

@@ -13,6 +13,10 @@ class GeometryError(TextileError):
     """Geometry the method cannot handle (too steep, no stacking order, empty footprint...)."""
 
 
+class SolverError(RuntimeError):
+    """A linear or nonlinear solve did not converge, or gave a non-finite answer."""
+
+
 def check_positive(name: str, value, allow_zero: bool = False) -> float:
     """Return value as a float if it is finite and > 0 (>= 0 with allow_zero); else raise TextileError."""
     try:

@@ -17,6 +17,11 @@ from scipy.spatial import cKDTree
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.yarn import Yarn
 
+# Vertical rays are nudged off the query points by this much [mm] (a fixed irrational direction), so
+# that they miss the edges and vertices of structured tubes; a length of its own, not a fraction
+# of the cell: a coupon's rays must meet its yarns where the unit cell's do.
+RAY_NUDGE = 1e-6
+
 
 @dataclass(frozen=True)
 class Cell:
@@ -202,8 +207,7 @@ class Textile:
     def columns(self, xy, yarns=None) -> Columns:
         """Vertical-ray intervals of every yarn (or those listed) over in-plane points xy (N, 2)."""
         xy = np.asarray(xy, float).reshape(-1, 2)
-        # A fixed irrational nudge keeps rays off triangle edges and vertices of structured tubes.
-        probe = xy + np.array([0.7548776662, 0.5698402910]) * 1e-7 * max(self.cell.lx, self.cell.ly)
+        probe = xy + np.array([0.7548776662, 0.5698402910]) * RAY_NUDGE
         rows = []
         odd = 0
         region = (*(probe[:, 0].min(), probe[:, 0].max()), *(probe[:, 1].min(), probe[:, 1].max())) if len(probe) else None
@@ -257,46 +261,26 @@ class Textile:
         ((N, 2) in-plane or (N, 3) positions)."""
         return self.nearest_centreline(i, points)[1]
 
-    def surface(self, i: int, clip: bool = True):
-        """Closed triangulated surface of yarn i (pyvista PolyData), clipped to the cell when asked."""
-        import pyvista
-
+    def tubes(self, i: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Closed tubes (points, outward triangles) of yarn i that together cover the cell: a
+        periodic yarn's copies along its own period are chained into one long capped tube per
+        lateral shift (surfaces.YarnSurfaces clips them to the cell)."""
         yarn = self.yarns[i]
         verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
         if not yarn.periodic:
-            pieces = [_closed_tube(verts)]
-        else:
-            # Chain copies along the yarn's own period into one long capped tube per lateral shift.
-            P = yarn.period
-            lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
-            bases = {}
-            for t in self._translations(yarn, lo, hi):
-                k = int(np.round(t @ P / (P @ P)))
-                b = t - k * P
-                bases.setdefault(tuple(np.round(b, 9)), (b, []))[1].append(k)
-            pieces = []
-            for b, ks in bases.values():
-                chain = [verts + k * P + b for k in range(min(ks) - 1, max(ks) + 2)]
-                long = np.concatenate([chain[0]] + [c[1:] for c in chain[1:]])
-                pieces.append(_closed_tube(long))
-        out = []
-        for pts, faces in pieces:
-            poly = pyvista.PolyData(pts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
-            if clip:
-                x0, x1, y0, y1 = self.cell.bounds
-                # clip_closed_surface keeps the side the normal points to
-                planes = [("x", (x0, 0, 0)), ("-x", (x1, 0, 0)), ("y", (0, y0, 0)), ("-y", (0, y1, 0))]
-                if self.cell.z_range is not None:
-                    planes += [("z", (0, 0, self.cell.z_range[0])), ("-z", (0, 0, self.cell.z_range[1]))]
-                for normal, origin in planes:
-                    if poly.n_points == 0:
-                        break
-                    poly = poly.clip_closed_surface(normal=normal, origin=origin)
-            if poly.n_points:
-                out.append(poly.triangulate())
-        if not out:
-            return pyvista.PolyData()
-        return out[0].merge(out[1:]) if len(out) > 1 else out[0]
+            return [_closed_tube(verts)]
+        P = yarn.period
+        lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
+        bases = {}
+        for t in self._translations(yarn, lo, hi):
+            k = int(np.round(t @ P / (P @ P)))
+            b = t - k * P
+            bases.setdefault(tuple(np.round(b, 9)), (b, []))[1].append(k)
+        pieces = []
+        for b, ks in bases.values():
+            chain = [verts + k * P + b for k in range(min(ks) - 1, max(ks) + 2)]
+            pieces.append(_closed_tube(np.concatenate([chain[0]] + [c[1:] for c in chain[1:]])))
+        return pieces
 
 
 def _tube_triangles(verts: np.ndarray, closed_ends: bool) -> np.ndarray:

@@ -14,7 +14,7 @@ from mpi4py import MPI
 import dolfinx
 import dolfinx.fem.petsc
 from textile_fenicsx.forms import c0ip_bending, clamped_slope_nitsche, moment
-from textile_fenicsx.solvers import DIRECT_LU, check_converged
+from textile_fenicsx.solver.linear import DIRECT_LU, check_converged
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class AnisotropicPlate:
     Db2: float = 0.2
     Db12: float = 0.3
     angle_deg: float = 30.0
-    alpha: float = 8.0
+    alpha: float = 3.0
 
     @staticmethod
     def exact(x, m=ufl):
@@ -114,7 +114,7 @@ def solve_fibre_jump_plate(n: int, Db1: float = 1.0, Db2: float = 0.25, comm: MP
     f = -np.pi**2 * ufl.sin(np.pi * x[0])
     c = dolfinx.fem.Constant
     Db12 = (Db1 + Db2) / 4
-    k1, k2, k12, alpha = (c(msh, float(v)) for v in (Db1, Db2, Db12, 8.0))
+    k1, k2, k12, alpha = (c(msh, float(v)) for v in (Db1, Db2, Db12, 3.0))
     w, v = ufl.TrialFunction(V), ufl.TestFunction(V)
     dx = ufl.Measure("dx", msh, metadata={"quadrature_degree": 6})
     a = c0ip_bending(w, v, d, k1, k2, k12, alpha, dx, ufl.Measure("dS", msh))

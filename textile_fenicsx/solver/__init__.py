@@ -1,0 +1,58 @@
+"""Plate + tension + contact solve of all yarns at once (DESIGN.md sections 5, 6 and 9).
+
+One module per idea:
+- parameters: PlateParameters, SolverOptions, Solution;
+- periodic: the unknowns (Periodicity, the one owner of the periodic numbering) and seam facets;
+- pattern: the combined matrix's fixed CSR pattern (FixedPattern);
+- contact: contact pairs as data, their forms derived from the contact energy;
+- problem: ContactProblem, the assembled energy (owns K, the vectors and the direct solver);
+- newton: the iterations (exact contact, the default; the paper's penalty);
+- linear: PETSc options as dicts, the direct solver and its checks.
+"""
+
+import logging
+import time
+
+from textile_fenicsx.meshes.midsurface import MidSurfaces
+from textile_fenicsx.meshes.projected import release_freed_memory
+from textile_fenicsx.solver.linear import DIRECT_LDLT, DIRECT_LU, SolverError, check_converged
+from textile_fenicsx.solver.newton import solve_exact, solve_penalty
+from textile_fenicsx.solver.parameters import METHODS, PlateParameters, Solution, SolverOptions
+from textile_fenicsx.solver.problem import ContactProblem
+
+__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "ContactProblem", "PlateParameters", "Solution", "SolverError",
+           "SolverOptions", "check_converged", "solve", "solve_problem"]
+
+log = logging.getLogger(__name__)
+
+
+def solve_problem(problem: ContactProblem) -> Solution:
+    """Run the problem's contact iteration and free its PETSc objects; the displacements, gaps and
+    contact states as Functions per yarn."""
+    start = time.perf_counter()
+    try:
+        out = (solve_exact if problem.exact else solve_penalty)(problem)
+        pen, volume = problem.penetration(out.gaps)
+        gap, contact = problem.fields(out.gaps, out.active)
+        w = problem.displacements(out.x)
+        out.x.destroy()
+        factorisations = problem.factorisations
+    finally:
+        problem.destroy()
+        release_freed_memory()  # MUMPS' factors back to the system before the outputs are made
+    log.info("contact: %s (%d Newton steps, %d multiplier updates, %d factorisations)", out.reason, out.iterations,
+             out.updates, factorisations)
+    return Solution(w=w, gap=gap, contact=contact, iterations=out.iterations, updates=out.updates,
+                    history=out.history, max_penetration=pen, penetration_volume=volume, converged=out.converged,
+                    reason=out.reason, times={"solve": time.perf_counter() - start})
+
+
+def solve(ms: MidSurfaces, params: PlateParameters = PlateParameters(), options: SolverOptions = SolverOptions(),
+          **kwargs) -> Solution:
+    """Assemble and solve the textile's plates with contact (kwargs: loads, foundation_stiffness)."""
+    t = time.perf_counter()
+    problem = ContactProblem(ms, params, options, **kwargs)
+    assembled = time.perf_counter() - t
+    solution = solve_problem(problem)
+    solution.times["assemble"] = assembled
+    return solution

@@ -1,0 +1,178 @@
+"""Contact pairs as data: for each vertically adjacent pair (upper u, lower l), its overlap dofs,
+initial gap, where its unknowns sit in the gathered vector, and the contact forms on u's overlap.
+
+A pair's arrays live on its overlap only (whole-yarn objects per pair cost gigabytes on coupons
+with a thousand pairs); the forms read the gap from one scratch Function per upper yarn, filled
+just before use. The gap at a dof is g = g0 + x[u] - x[l] (T x: crossing yarns share the parent
+mesh's nodes, so the lower yarn's value at the same point is its own dof there).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+import ufl
+from petsc4py import PETSc
+
+import dolfinx
+from textile_fenicsx.forms import contact_forms, penetration_volume
+from textile_fenicsx.meshes.midsurface import MidSurfaces
+from textile_fenicsx.solver.parameters import PlateParameters
+from textile_fenicsx.solver.periodic import Periodicity
+
+__all__ = ["ContactPair", "Nodes", "PairForms", "build_pairs", "contact_nodes", "gathered_unknowns", "jacobian_values",
+           "residual_values"]
+
+
+@dataclass(frozen=True)
+class PairForms:
+    """Compiled forms of one pair on its upper yarn (the gap is the upper yarn's scratch `g`)."""
+
+    g: dolfinx.fem.Function        # scratch gap Function of the upper yarn
+    energy: dolfinx.fem.Form
+    residual: dolfinx.fem.Form
+    jacobian: dolfinx.fem.Form
+    penetration: dolfinx.fem.Form
+    matrix: dolfinx.la.MatrixCSR   # the Jacobian's storage (its owned rows' entries come first)
+    nnz: int                       # entries of the owned rows
+
+
+@dataclass(frozen=True)
+class ContactPair:
+    """One pair's overlap. Arrays over the overlap dofs (owned and ghost) unless said otherwise."""
+
+    upper: int
+    lower: int
+    dofs: np.ndarray      # the upper yarn's local dofs
+    owned: np.ndarray     # positions (in dofs) of the dofs this rank owns
+    g0: np.ndarray        # initial gap [mm]
+    margin: np.ndarray    # how much the P2 gap overstates the model's gap near the dof [mm]
+    at_u: np.ndarray      # positions of the unknowns of u and l in the gathered vector
+    at_l: np.ndarray
+    cells: np.ndarray     # the upper yarn's owned cells of the overlap
+    forms: PairForms
+
+    def gap(self, gathered: np.ndarray) -> np.ndarray:
+        """g = g0 + w_u - w_l at the dofs, from the gathered unknowns [mm]."""
+        return self.g0 + gathered[self.at_u] - gathered[self.at_l]
+
+    def fill(self, g: np.ndarray) -> None:
+        """Put this pair's gap into its upper yarn's scratch Function, for the forms."""
+        self.forms.g.x.array[self.dofs] = g
+
+
+def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters, exact: bool):
+    """The pairs, and the (row, column) unknowns of T^T J T's entries in the order `jacobian_values`
+    gives them, and the unknowns every pair needs (sorted: the gathered vector's layout)."""
+    yarns = ms.yarns
+    scratch, cell_order = {}, {}
+    pending, rows, cols = [], [], []
+    for (u, l), cells in ms.contact.items():
+        yu, yl = yarns[u], yarns[l]
+        if u not in scratch:
+            scratch[u] = dolfinx.fem.Function(yu.V, name="gap")
+            cell_order[u] = np.argsort(yu.parent_cells)
+        g = scratch[u]
+        k = np.searchsorted(yu.parent_cells, cells, sorter=cell_order[u])
+        sub_cells = np.sort(cell_order[u][k]).astype(np.int32)
+        tags = dolfinx.mesh.meshtags(yu.mesh, 2, sub_cells, np.full(len(sub_cells), 1, np.int32))
+        dx = ufl.Measure("dx", yu.mesh, subdomain_data=tags, subdomain_id=1)
+        Ec, Et = (dolfinx.fem.Constant(yu.mesh, float(v)) for v in (params.Ec, params.Et))
+        energy, residual, jacobian = (dolfinx.fem.form(f) for f in contact_forms(g, Ec, Et, dx, exact))
+        M = dolfinx.fem.create_matrix(jacobian)
+        n_owned = yu.V.dofmap.index_map.size_local
+        nnz = int(M.indptr[n_owned])
+        forms = PairForms(g, energy, residual, jacobian, dolfinx.fem.form(penetration_volume(g, dx)), M, nnz)
+        # the overlap's dofs on u and on l (the same points)
+        dofs = ms.contact_dofs[(u, l)]
+        du, dl = dofs[:, 0], dofs[:, 1]
+        g0 = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
+        parent = numbering.parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
+        cu, cl = numbering.unknown(u, parent), numbering.unknown(l, parent)
+        # T^T J T: J's entry (i, j) adds +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j);
+        # a column may be a dof this rank does not hold (rows get couplings from cells elsewhere)
+        i = numbering.parent_global[yu.to_parent[np.repeat(np.arange(n_owned), np.diff(M.indptr[:n_owned + 1]))]]
+        j = numbering.column_parents(yu, M.index_map(1).local_to_global(M.indices[:nnz]))
+        ui, uj, li, lj = (numbering.unknown(y, d) for y, d in ((u, i), (u, j), (l, i), (l, j)))
+        rows.append(np.concatenate([ui, ui, li, li]))
+        cols.append(np.concatenate([uj, lj, uj, lj]))
+        owned_cells = sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]
+        margin = ms.contact_margin.get((u, l), np.zeros(len(du)))
+        pending.append((u, l, du, np.flatnonzero(du < n_owned), g0, margin, cu, cl, owned_cells, forms))
+    need = np.unique(np.concatenate([np.concatenate([p[6], p[7]]) for p in pending] + [np.zeros(0, np.int64)]))
+    pairs = [ContactPair(u, l, du, owned, g0, margin, np.searchsorted(need, cu), np.searchsorted(need, cl), cells,
+                         forms) for u, l, du, owned, g0, margin, cu, cl, cells, forms in pending]
+    cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
+    return pairs, (cat(rows), cat(cols)), need
+
+
+def jacobian_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:
+    """The pair's T^T J T entries at gap g (in build_pairs' order): J assembled on its owned rows,
+    each entry given to four places."""
+    pair.fill(g)
+    M = pair.forms.matrix
+    M.set_value(0.0)
+    dolfinx.fem.assemble_matrix(M, pair.forms.jacobian)
+    M.scatter_reverse()
+    m = M.data[:pair.forms.nnz]
+    return np.concatenate([m, -m, -m, m])
+
+
+def residual_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:
+    """The contact residual dE/dg at gap g, at the pair's owned dofs (+r to u's unknowns, -r to l's)."""
+    pair.fill(g)
+    f = dolfinx.fem.assemble_vector(pair.forms.residual)
+    f.scatter_reverse(dolfinx.la.InsertMode.add)
+    return f.array[pair.dofs[pair.owned]]
+
+
+def gathered_unknowns(template: PETSc.Vec, need: np.ndarray) -> tuple[PETSc.Scatter, PETSc.Vec]:
+    """A scatter that brings the unknowns `need` (global indices) of vectors like `template` to
+    this rank, and its target."""
+    target = PETSc.Vec().createSeq(len(need), comm=PETSc.COMM_SELF)
+    index = PETSc.IS().createGeneral(need.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+    scatter = PETSc.Scatter().create(template, index, target, None)
+    index.destroy()
+    return scatter, target
+
+
+@dataclass(frozen=True)
+class Nodes:
+    """The exact method's constraints g >= 0, one per owned overlap node of each pair (a node and
+    its periodic image give one). Arrays over the nodes of this rank."""
+
+    pair: np.ndarray      # index of the node's pair
+    at: np.ndarray        # position of the node in its pair's dofs
+    at_u: np.ndarray      # positions of the unknowns of u and l in the gathered vector
+    at_l: np.ndarray
+    rows_u: np.ndarray    # the unknowns of u and l (global indices)
+    rows_l: np.ndarray
+    g0: np.ndarray        # initial gap less the node's margin [mm]: the constraint is g0 + C x >= 0
+
+    def gap(self, gathered: np.ndarray) -> np.ndarray:
+        """g at the nodes from the gathered unknowns [mm]."""
+        return self.g0 + gathered[self.at_u] - gathered[self.at_l]
+
+    def pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, columns) of C^T C's entries, in the order of `values`."""
+        u, l = self.rows_u, self.rows_l
+        return np.concatenate([u, u, l, l]), np.concatenate([u, l, u, l])
+
+    @staticmethod
+    def values(c: np.ndarray) -> np.ndarray:
+        """C^T diag(c) C's entries for the nodal stiffnesses c (0 where a node is inactive)."""
+        return np.concatenate([c, -c, -c, c])
+
+
+def contact_nodes(pairs: list[ContactPair], need: np.ndarray, images: list[np.ndarray]) -> Nodes:
+    """One constraint per (pair, node) among the owned overlap dofs: the gap at least the node's
+    margin (the P2 field's overstatement of the model's gap around it). A periodic image (a dof on
+    the right or top side, the slave of one on the left or bottom) is the same constraint as its
+    master's and is left out, whatever rank owns either: the set of constraints, like the
+    unknowns, does not depend on the partition. images[i]: yarn i's dofs that are images, per
+    pair's upper yarn (bool over its local dofs)."""
+    parts = []
+    for k, p in enumerate(pairs):
+        at = p.owned[~images[p.upper][p.dofs[p.owned]]]
+        parts.append((np.full(len(at), k), at, p.at_u[at], p.at_l[at], p.g0[at] - p.margin[at]))
+    pair, at, at_u, at_l, g0 = (np.concatenate(a) for a in zip(*parts)) if parts else (np.zeros(0, np.int64),) * 5
+    return Nodes(pair.astype(np.int64), at.astype(np.int64), at_u, at_l, need[at_u], need[at_l], g0.astype(float))

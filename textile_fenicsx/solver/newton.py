@@ -1,0 +1,260 @@
+"""The contact iterations: Newton steps on a convex energy.
+
+exact (default): no penetration at the overlap nodes. The energy of the plates (and the spring
+that holds yarns together where they are apart) is quadratic, the constraints g_i = g0_i +
+(x_u - x_l)_i >= 0 are linear: a convex QP, solved by a primal-dual interior-point method
+(Mehrotra's predictor-corrector) with nodal slacks s and forces lam. Every step follows a smooth
+central path s lam = mu -> 0: nothing in it is a discrete decision, so round-off cannot switch
+it between branches (active-set methods flip nodes that sit at zero gap with zero force, and on
+plates whole contact areas are like that: the pressure gathers at their edges) and the same
+problem takes the same steps on any partition and under any load. It stops when a step that the
+boundary did not cut short moves no point by more than displacement_tol and no node penetrates by
+more than penetration_tol.
+
+penalty (the paper's): the contact energy 1/2 k(g) g^2 integrated over the overlaps, k = Ec where
+g < 0; Newton steps with the contact states at the quadrature points, halved until the energy
+falls; stops when the gradient is at round-off level (a state flipping at zero gap changes
+neither the energy nor the gradient, so it cannot keep the iteration going).
+"""
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from textile_fenicsx.solver.problem import ContactProblem
+
+__all__ = ["Outcome", "solve_exact", "solve_penalty"]
+
+log = logging.getLogger(__name__)
+
+# penalty: relative gradient below which a Newton iterate counts as the minimiser (the direct
+# solves reach ~1e-14 of the force scale; 1e-10 leaves room for the conditioning of hard contact)
+GRADIENT_RTOL = 1e-10
+# interior point: the start's spring (a fraction of the plates' nodal stiffness; iteration counts
+# moved by one or two over 1e-3..1 on the reference models), how close to the boundary a step
+# may go, and the largest nodal weight lam / s (relative to the node's stiffness: beyond it the
+# factorisation's pivots lose their meaning)
+START_RATIO = 1e-3
+FRACTION_TO_BOUNDARY = 0.995
+MAX_WEIGHT = 1e8
+# steps in a row that move nothing while nodes still penetrate: the constraints cannot all hold
+STALLED_STEPS, STALLED_STEP = 5, 1e-6
+# the barrier parameter relative to its start below which the steps lose accuracy (round-off in
+# lam / s of the closed nodes): the iteration ends there
+MU_FLOOR = 1e-13
+
+
+@dataclass
+class Outcome:
+    """What an iteration ends with: the unknowns, per pair the gap and where contact is active."""
+
+    x: PETSc.Vec
+    gaps: list
+    active: list
+    iterations: int
+    updates: int
+    converged: bool
+    reason: str
+    history: list = field(default_factory=list)
+
+
+def _global_max(comm, values: np.ndarray) -> float:
+    return comm.allreduce(float(np.max(values)) if len(values) else 0.0, op=MPI.MAX)
+
+
+def _step_to_boundary(v: np.ndarray, dv: np.ndarray) -> float:
+    """The largest alpha <= 1 with v + alpha dv >= 0 (v > 0), on this rank."""
+    down = dv < 0
+    return float(min(1.0, np.min(-v[down] / dv[down]))) if np.any(down) else 1.0
+
+
+class _InteriorPoint:
+    """Mehrotra's predictor-corrector for  min E(x)  subject to  g(x) = g0 + C x >= 0  at the nodes,
+    with slacks s = g (s > 0) and nodal forces lam > 0, s lam -> 0 along the central path. Each
+    step factorises K_fixed + C^T diag(lam / s) C once and solves with it twice."""
+
+    def __init__(self, problem: ContactProblem):
+        self.problem, self.nodes, self.comm = problem, problem.nodes, problem.comm
+        nodes = self.nodes
+        self.rows = np.concatenate([nodes.rows_u, nodes.rows_l])
+        self.count = max(self.comm.allreduce(len(nodes.g0), op=MPI.SUM), 1)
+        diag = problem.K_fixed.getDiagonal()
+        dg = problem.gather(diag)
+        diag.destroy()
+        self.k = np.abs(dg[nodes.at_u]) + np.abs(dg[nodes.at_l])  # the plates' stiffness at each node [N/mm]
+        # start: x = 0, slacks a little above the initial gaps, forces of a soft spring over that distance
+        tau = max(self.max(-nodes.g0), problem.options.penetration_tol * 1e3)
+        self.s = np.maximum(nodes.g0, 0.0) + tau
+        self.lam = START_RATIO * self.k * tau
+        self.x, self.dx = problem.b_fixed.duplicate(), problem.b_fixed.duplicate()
+        self.x.set(0.0)
+
+    def max(self, v: np.ndarray) -> float:
+        return _global_max(self.comm, v)
+
+    def mean(self, v: np.ndarray) -> float:
+        return self.comm.allreduce(float(np.sum(v)), op=MPI.SUM) / self.count
+
+    def gaps(self, x: PETSc.Vec) -> np.ndarray:
+        return self.nodes.gap(self.problem.gather(x))
+
+    def add_transpose(self, vec: PETSc.Vec, v: np.ndarray, scale: float = 1.0) -> None:
+        """vec += scale C^T v."""
+        self.problem.add_at(vec, self.rows, scale * np.concatenate([v, -v]))
+
+    def step(self, it: int) -> dict:
+        """One predictor-corrector step; what it did."""
+        problem, s, lam = self.problem, self.s, self.lam
+        g = self.gaps(self.x)
+        rd = problem.gradient(self.x, None)  # dual residual K x - f - C^T lam
+        self.add_transpose(rd, lam, -1.0)
+        rp = g - s
+        mu = self.mean(s * lam)
+        w = np.minimum(lam / s, MAX_WEIGHT * self.k)  # capped: a closed node's weight grows like 1/mu
+        problem.newton_matrix(c_nodes=w)
+
+        def direction(rc):
+            """(ds, dlam), with dx in self.dx, for the complementarity residual rc = s lam - target."""
+            rhs = rd.copy()
+            rhs.scale(-1.0)
+            self.add_transpose(rhs, rc / s + w * rp, -1.0)
+            problem.solve(rhs, self.dx, f"contact iteration {it}")
+            rhs.destroy()
+            xs = problem.gather(self.dx)
+            ds = xs[self.nodes.at_u] - xs[self.nodes.at_l] + rp
+            return ds, -(rc + lam * ds) / s
+
+        def longest(ds, dl):
+            return self.comm.allreduce(min(_step_to_boundary(s, ds), _step_to_boundary(lam, dl)), op=MPI.MIN)
+
+        ds, dl = direction(s * lam)  # the affine step, then the centred corrector
+        alpha = longest(ds, dl)
+        sigma = (self.mean((s + alpha * ds) * (lam + alpha * dl)) / mu) ** 3 if mu > 0 else 0.0
+        ds, dl = direction(s * lam + ds * dl - sigma * mu)
+        alpha = min(1.0, FRACTION_TO_BOUNDARY * longest(ds, dl))
+        self.x.axpy(alpha, self.dx)
+        self.s, self.lam = s + alpha * ds, lam + alpha * dl
+        rd.destroy()
+        return dict(iteration=it, mu=mu, max_penetration=self.max(-g), step=alpha, sigma=sigma,
+                    moved_mm=alpha * self.dx.norm(PETSc.NormType.NORM_INFINITY))
+
+
+def solve_exact(problem: ContactProblem) -> Outcome:
+    """The exact method (module docstring): interior-point steps until one that is not held back
+    by the boundary moves no point by more than displacement_tol, and no node penetrates."""
+    opts = problem.options
+    ip = _InteriorPoint(problem)
+    history, stalled, good = [], 0, np.inf
+    for it in range(1, opts.max_iterations + 1):
+        t0 = time.perf_counter()
+        line = ip.step(it)
+        mu_start = history[0]["mu"] if history else line["mu"]
+        g = ip.gaps(ip.x)
+        line.update(max_penetration=ip.max(-g), time_s=time.perf_counter() - t0)
+        history.append(line)
+        log.info("contact step %3d: max penetration %.3e mm, moved %.2e mm, step %.3g, mu %.2e, %.2f s", it,
+                 line["max_penetration"], line["moved_mm"], line["step"], line["mu"], line["time_s"])
+        good = line["moved_mm"] if line["step"] >= 0.5 else good  # the last step the boundary did not cut
+        # done: a full step moved nothing by more than the tolerance; or the barrier is at the
+        # floor of double precision (further steps only lose accuracy) after one that nearly did
+        floor = line["mu"] <= MU_FLOOR * mu_start and good <= 10 * opts.displacement_tol
+        if line["max_penetration"] <= opts.penetration_tol and (good <= opts.displacement_tol or floor):
+            return _ended(problem, ip, it, history, True,
+                          f"converged: the last full step moved {good:.1e} mm, no node penetrates by more "
+                          f"than {max(line['max_penetration'], 0):.1e} mm (tolerances {opts.displacement_tol:g}, "
+                          f"{opts.penetration_tol:g} mm)")
+        # the boundary cuts every step to nothing while nodes still penetrate: no position of the
+        # yarns satisfies every contact
+        stalled = stalled + 1 if line["step"] <= STALLED_STEP and line["max_penetration"] > opts.penetration_tol else 0
+        if stalled >= STALLED_STEPS:
+            return _ended(problem, ip, it, history, False, _infeasible(problem, g))
+    return _ended(problem, ip, opts.max_iterations, history, False,
+                  f"the contact iteration reached its cap of {opts.max_iterations} steps (largest penetration "
+                  f"{history[-1]['max_penetration']:.2e} mm, last step moved {history[-1]['moved_mm']:.1e} mm)")
+
+
+def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
+    """The message for contact constraints that cannot all hold, naming the worst place."""
+    nodes, comm = problem.nodes, problem.comm
+    k = int(np.argmin(g)) if len(g) else -1
+    worst = (float(-g[k]), nodes.pair[k], nodes.at[k]) if k >= 0 else (-np.inf, -1, -1)
+    pen, pair, at = max(comm.allgather(worst), key=lambda w: w[0])
+    where = ""
+    if comm.rank == comm.allgather(worst).index(max(comm.allgather(worst), key=lambda w: w[0])):
+        p = problem.pairs[pair]
+        y = problem.ms.yarns[p.upper]
+        xy = y.V.tabulate_dof_coordinates()[p.dofs[at], :2]
+        names = [t.name for t in problem.ms.projected.textile.yarns]
+        where = (f" between {names[p.upper]} (yarn {p.upper}) above and {names[p.lower]} (yarn {p.lower}) below "
+                 f"at ({xy[0]:.3f}, {xy[1]:.3f}) mm")
+    where = max(comm.allgather(where), key=len)
+    return (f"no position of the yarns keeps every contact: {pen:.3g} mm of penetration remain{where}; the "
+            "stacking order of the model contradicts itself there (check the yarns' heights)")
+
+
+def _ended(problem: ContactProblem, ip: _InteriorPoint, it, history, converged, reason) -> Outcome:
+    """The outcome; a node is in contact where its force exceeds its gap's worth of its stiffness."""
+    nodes = problem.nodes
+    g = problem.gaps(ip.x)
+    active = [np.zeros(len(gp), bool) for gp in g]
+    closed = ip.lam > ip.k * ip.s
+    for k, a in enumerate(active):
+        a[nodes.at[(nodes.pair == k) & closed]] = True
+    ip.dx.destroy()
+    return Outcome(ip.x, g, active, it, 0, converged, reason, history)
+
+
+def solve_penalty(problem: ContactProblem) -> Outcome:
+    """The paper's penalty method (module docstring)."""
+    opts, comm = problem.options, problem.comm
+    x, d, x_old = (problem.b_fixed.duplicate() for _ in range(3))
+    x.set(0.0)
+    g = problem.gaps(x)
+    energy = problem.energy(x, g)
+    scale = max(problem.b_fixed.norm(), 1e-300)
+    history, state = [], _states(g)
+    for it in range(1, opts.max_iterations + 1):
+        t0 = time.perf_counter()
+        grad = problem.gradient(x, g)
+        res = grad.norm() / scale
+        if res <= GRADIENT_RTOL and it > 1:
+            grad.destroy()
+            return Outcome(x, g, [gp < 0 for gp in g], it - 1, 0, True,
+                           f"converged: gradient {res:.1e} of the force scale", history)
+        problem.newton_matrix(g)
+        grad.scale(-1.0)
+        problem.solve(grad, d, f"contact iteration {it}")
+        grad.destroy()
+        x.copy(x_old)
+        t = 1.0
+        while True:  # halve the step until the energy falls (undamped, the states can cycle)
+            x_old.copy(x)
+            x.axpy(t, d)
+            g = problem.gaps(x)
+            trial = problem.energy(x, g)
+            if trial <= energy + 1e-12 * (abs(energy) + abs(trial)):
+                break
+            t /= 2
+            if t < 1e-12:
+                return Outcome(x, g, [gp < 0 for gp in g], it, 0, False,
+                               f"the damped contact step found no lower energy at iteration {it}", history)
+        energy, new = trial, _states(g)
+        changed = comm.allreduce(int(np.sum(new != state)), op=MPI.SUM)
+        state = new
+        pen = _global_max(comm, np.concatenate([-gp for gp in g] + [np.zeros(1)]))
+        history.append(dict(iteration=it, active=comm.allreduce(int(np.sum(new)), op=MPI.SUM), changed=changed,
+                            max_penetration=pen, residual=res, step=t, energy=energy,
+                            time_s=time.perf_counter() - t0))
+        log.info("contact step %3d: active %6d, changed %5d, max penetration %.3e mm, residual %.2e, step %.3g, "
+                 "%.2f s", it, history[-1]["active"], changed, pen, res, t, history[-1]["time_s"])
+    return Outcome(x, g, [gp < 0 for gp in g], opts.max_iterations, 0, False,
+                   f"the contact iteration reached its cap of {opts.max_iterations} steps", history)
+
+
+def _states(g: list[np.ndarray]) -> np.ndarray:
+    """Where the gap is closed, at the overlap dofs (the penalty's states, for the log)."""
+    return np.concatenate([gp < 0 for gp in g] + [np.zeros(0, bool)])

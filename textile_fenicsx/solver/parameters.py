@@ -1,0 +1,91 @@
+"""What the solve takes and what it gives: plate stiffnesses, iteration settings, the solution."""
+
+from dataclasses import dataclass, field
+
+import dolfinx
+from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.solver.linear import DIRECT_LDLT
+
+__all__ = ["METHODS", "PlateParameters", "Solution", "SolverOptions"]
+
+METHODS = ("exact", "penalty")
+
+
+@dataclass(frozen=True)
+class PlateParameters:
+    """Stiffnesses of the yarn plates (TexGen's defaults, which the paper used).
+
+    Db1, Db2: bending stiffness along and across the fibre [N mm]; Db12: twisting stiffness [N mm]
+    (default (Db1 + Db2) / 4); sigma1: fibre tension [N/mm]; Ec: contact stiffness where yarns
+    penetrate [N/mm^3] (the penalty method's; the exact method needs none); Et: stiffness of the
+    spring that holds yarns together where they are apart [N/mm^3]; alpha: interior-penalty
+    factor [-]. Only ratios matter for the geometry.
+    """
+
+    Db1: float = 1.0
+    Db2: float = 1.0
+    Db12: float | None = None
+    sigma1: float = 1.0
+    Ec: float = 1e3
+    Et: float = 1e-4
+    alpha: float = 3.0
+
+    def __post_init__(self):
+        for name in ("Db1", "Db2", "sigma1", "Et"):
+            check_positive(name, getattr(self, name), allow_zero=True)
+        check_positive("Ec", self.Ec)
+        check_positive("alpha", self.alpha)
+        if self.Db12 is None:
+            object.__setattr__(self, "Db12", (self.Db1 + self.Db2) / 4)
+        check_positive("Db12", self.Db12, allow_zero=True)
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """How to iterate.
+
+    method: "exact" (default: no penetration at the mesh nodes, to penetration_tol [mm], whatever
+    the stiffnesses) or "penalty" (the paper's: contact stiffness Ec, penetration ~ load / Ec).
+    max_iterations: cap on Newton steps. Exact method: penetration_tol [mm], the largest
+    penetration left at a node; displacement_tol [mm], the largest move of the last step (the
+    distance to the exact minimiser is of that order). petsc: options of the linear solves (a
+    plain dict, written under the solver's own prefix only while it is read).
+    """
+
+    method: str = "exact"
+    max_iterations: int = 100
+    penetration_tol: float = 1e-6
+    displacement_tol: float = 1e-6
+    petsc: dict = field(default_factory=lambda: dict(DIRECT_LDLT))
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise TextileError(f"solver method must be one of {', '.join(map(repr, METHODS))}, got {self.method!r}")
+        if int(self.max_iterations) < 1:
+            raise TextileError(f"max_iterations must be >= 1, got {self.max_iterations!r}")
+        check_positive("penetration_tol", self.penetration_tol)
+        check_positive("displacement_tol", self.displacement_tol)
+
+
+@dataclass
+class Solution:
+    """Displacements per yarn and how they were found.
+
+    w: per yarn, its displacement [mm] (a Function on its mid-surface's P2 space). gap, contact:
+    per yarn, its gap to the yarn below [mm] (0 where nothing is below) and the contact state
+    (1 where a constraint or the penalty is active), for output. history: one dict per Newton step.
+    max_penetration: largest -g at the overlap nodes [mm]; penetration_volume: the integral of
+    max(0, -g) over the overlaps [mm^3]. reason: why the iteration stopped.
+    """
+
+    w: list[dolfinx.fem.Function]
+    gap: list[dolfinx.fem.Function]
+    contact: list[dolfinx.fem.Function]
+    iterations: int
+    updates: int
+    history: list[dict]
+    max_penetration: float
+    penetration_volume: float
+    converged: bool
+    reason: str
+    times: dict = field(default_factory=dict)

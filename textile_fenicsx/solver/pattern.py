@@ -1,0 +1,97 @@
+"""The combined matrix as one AIJ matrix whose CSR pattern is fixed once (DESIGN.md 6: reuse the
+symbolic factorisation across contact steps).
+
+Triplets (row, column, value) may be given on any rank: each goes to its row's owner and repeated
+entries are summed. Constant triplets (plates, pin) come yarn by yarn (`add_fixed`, collective) and
+are compressed as they come; `freeze` then fixes the pattern with the variable triplets' (row,
+column) (contact), after which `values(v)` gives the constant part plus these values in the
+pattern's order, and `matrix(v)` a PETSc matrix with them. The indices are never held as one big
+uncompressed array (that was the solver's memory peak on large coupons).
+"""
+
+import numpy as np
+import scipy.sparse
+from mpi4py import MPI
+from petsc4py import PETSc
+
+__all__ = ["FixedPattern"]
+
+
+class FixedPattern:
+    """The pattern of a square matrix over n unknowns, rows [start, start + n_local) on this rank."""
+
+    def __init__(self, comm: MPI.Comm, start: int, n_local: int):
+        self.comm, self.start, self.n_local = comm, start, n_local
+        self.starts = np.array(comm.allgather(start))
+        self.n_cols = comm.allreduce(n_local, op=MPI.SUM)
+        self._fixed = []  # compressed (local row, column, value) pieces
+        self.frozen = False
+
+    def add_fixed(self, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> None:
+        """Constant entries (collective)."""
+        if self.frozen:
+            raise RuntimeError("FixedPattern: add_fixed after freeze")
+        plan = self._plan(np.asarray(rows, np.int64))
+        A = self._csr(*(self._route(plan, np.asarray(a, dt)) for a, dt in
+                        ((rows, np.int64), (cols, np.int64), (vals, np.float64)))).tocoo()
+        self._fixed.append((A.row, A.col, A.data))
+
+    def freeze(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        """Fix the pattern: the constant entries and these (row, column) of the variable values."""
+        self.plan = self._plan(np.asarray(rows, np.int64))
+        r, c = (self._route(self.plan, np.asarray(a, np.int64)) for a in (rows, cols))
+        fr, fc, fv = (np.concatenate(a) for a in zip(*self._fixed)) if self._fixed else (np.zeros(0, int),) * 3
+        self._fixed, self.frozen = None, True
+        U = self._csr(np.concatenate([fr + self.start, r]), np.concatenate([fc, c]),
+                      np.concatenate([fv, np.zeros(len(r))]))
+        del fr, fc, fv
+        self.base = U.data.copy()  # the constant part, in the pattern's order
+        U.data = np.arange(U.nnz, dtype=np.float64)  # each entry's position, to look the variable ones up
+        small = np.int32 if U.nnz < 2**31 else np.int64
+        self.positions = np.asarray(U[r - self.start, c]).ravel().astype(small) if len(r) else np.zeros(0, small)
+        self.indptr, self.indices = U.indptr.astype(PETSc.IntType), U.indices.astype(PETSc.IntType)
+
+    def values(self, variable: np.ndarray | None = None) -> np.ndarray:
+        """Summed values (constant part + the variable values, given in freeze's order, on the rank
+        that gave them) in the order of (indptr, indices)."""
+        if variable is None:
+            return self.base.astype(PETSc.ScalarType)
+        v = self._route(self.plan, np.asarray(variable, np.float64))
+        out = np.bincount(self.positions, weights=v, minlength=len(self.indices)).astype(np.float64, copy=False)
+        out += self.base  # in place: on a coupon each array of this size is 0.2 GB per rank
+        return out.astype(PETSc.ScalarType, copy=False)
+
+    def matrix(self) -> PETSc.Mat:
+        """A new symmetric AIJ matrix with this pattern and the constant values."""
+        A = PETSc.Mat().createAIJ(((self.n_local, self.n_cols),) * 2, comm=self.comm)
+        A.setPreallocationCSR((self.indptr, self.indices, self.values()))
+        A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        A.assemble()
+        return A
+
+    def fill(self, A: PETSc.Mat, variable: np.ndarray | None) -> None:
+        """Put constant + variable values into A (made by `matrix`)."""
+        A.setValuesCSR(self.indptr, self.indices, self.values(variable), addv=PETSc.InsertMode.INSERT_VALUES)
+        A.assemble()
+
+    def _csr(self, rows, cols, vals) -> scipy.sparse.csr_matrix:
+        """A local-rows CSR of owned-row triplets, repeated entries summed, zeros kept."""
+        return scipy.sparse.coo_matrix((vals, (rows - self.start, cols)), shape=(self.n_local, self.n_cols)).tocsr()
+
+    def _plan(self, rows: np.ndarray):
+        owner = np.searchsorted(self.starts, rows, side="right") - 1
+        order = np.argsort(owner, kind="stable").astype(np.int64)
+        send = np.bincount(owner, minlength=self.comm.size).astype(np.int64)
+        recv = np.array(self.comm.alltoall(send.tolist()), dtype=np.int64)
+        return order, send, recv
+
+    def _route(self, plan, data: np.ndarray) -> np.ndarray:
+        order, send, recv = plan
+        data = data[order]
+        if self.comm.size == 1:
+            return data
+        out = np.empty(int(recv.sum()), dtype=data.dtype)
+        sd = np.concatenate(([0], np.cumsum(send)[:-1]))
+        rd = np.concatenate(([0], np.cumsum(recv)[:-1]))
+        self.comm.Alltoallv([data, (send, sd)], [out, (recv, rd)])
+        return out

@@ -1,0 +1,136 @@
+"""The unknowns: one per yarn dof that is not a periodic image, numbered once (DESIGN.md 6).
+
+`Periodicity` is the one owner of this numbering. Every yarn dof on the right/top seam or in the
+ghost strip is a slave of its image inside the cell; `unknown(i, parent_dofs)` resolves slaves to
+their masters and returns the unknowns' global indices, and `yarn_map(y)` is the sparse map R_i
+(yarn dofs -> unknowns, one 1 per row) that the plates are reduced with: K = sum R_i^T A_i R_i.
+The last unknown, owned by the last rank, is the multiplier that removes the common translation.
+"""
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import dolfinx
+from textile_fenicsx.meshes.midsurface import REAL, MidSurface, MidSurfaces
+from textile_fenicsx.solver.linear import SolverError
+
+__all__ = ["Periodicity", "seam_facet_tags"]
+
+
+class Periodicity:
+    """Global numbering of the unknowns: per rank, per yarn, the owned master dofs; then one
+    multiplier. Frozen once built; every rank can look up any yarn dof's unknown."""
+
+    def __init__(self, ms: MidSurfaces):
+        V, comm = ms.V, ms.V.mesh.comm
+        imap = V.dofmap.index_map
+        self.comm = comm
+        self.parent_global = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
+        self.images = []
+        for pairs in ms.periodic:
+            order = np.argsort(pairs[:, 0])
+            self.images.append((pairs[order, 0], pairs[order, 1]))
+        # each yarn dof is counted once, by the rank that owns it in the yarn's submesh (a parent
+        # dof's owner need not hold a cell of that yarn: ghosts are shared by facets, not vertices)
+        masters = []
+        for y in ms.yarns:
+            glob = self.parent_global[y.to_parent[:y.V.dofmap.index_map.size_local]]
+            masters.append(np.sort(glob[~np.isin(glob, self.images[y.yarn][0])]))
+        n_local = int(sum(len(m) for m in masters))
+        self.start = comm.exscan(n_local) or 0
+        self.n = comm.allreduce(n_local, op=MPI.SUM)
+        self.multiplier = self.n
+        self.n_local = n_local + (1 if comm.rank == comm.size - 1 else 0)
+        # parent global dof -> unknown, per yarn, known on every rank (gathered once)
+        pos, mine = self.start, []
+        for m in masters:
+            mine.append((m, np.arange(pos, pos + len(m), dtype=np.int64)))
+            pos += len(m)
+        every = comm.allgather(mine)
+        self.lookup = []
+        for i in range(len(ms.yarns)):
+            keys = np.concatenate([part[i][0] for part in every])
+            vals = np.concatenate([part[i][1] for part in every])
+            order = np.argsort(keys)
+            self.lookup.append((keys[order], vals[order]))
+
+    def unknown(self, i: int, parent_global: np.ndarray) -> np.ndarray:
+        """Unknown index of yarn i at parent global dofs (slaves resolved to their masters)."""
+        img_keys, img_vals = self.images[i]
+        master = np.asarray(parent_global, dtype=np.int64).copy()
+        if len(img_keys):
+            k = np.minimum(np.searchsorted(img_keys, master), len(img_keys) - 1)
+            hit = img_keys[k] == master
+            master[hit] = img_vals[k[hit]]
+        keys, vals = self.lookup[i]
+        k = np.minimum(np.searchsorted(keys, master), max(len(keys) - 1, 0))
+        if len(master) and (len(keys) == 0 or np.any(keys[k] != master)):
+            raise SolverError(f"yarn {i}: a dof has no master unknown (its periodic image is not a dof of the "
+                              "yarn: the footprint is not periodic on the mesh)")
+        return vals[k]
+
+    def image_dofs(self, ms: MidSurfaces) -> list[np.ndarray]:
+        """Per yarn, which of its local dofs (owned and ghost) are periodic images (slaves)."""
+        return [np.isin(self.parent_global[y.to_parent], self.images[y.yarn][0]) for y in ms.yarns]
+
+    def yarn_unknowns(self, y: MidSurface, dofs: np.ndarray) -> np.ndarray:
+        """Unknowns of yarn y's local dofs."""
+        return self.unknown(y.yarn, self.parent_global[y.to_parent[dofs]])
+
+    def column_parents(self, y: MidSurface, cols: np.ndarray) -> np.ndarray:
+        """Global parent dofs of yarn y's dofs given by their global index in y's space, which may
+        be another rank's (an assembled row's columns); collective. `release()` frees the cache."""
+        cache = self.__dict__.setdefault("_parents", {})
+        if y.yarn not in cache:
+            imap = y.V.dofmap.index_map
+            cache[y.yarn] = PETSc.Vec().createMPI((imap.size_local, imap.size_global), comm=self.comm)
+            cache[y.yarn].getArray()[:] = self.parent_global[y.to_parent[:imap.size_local]]
+        owned = cache[y.yarn]
+        wanted, back = np.unique(cols, return_inverse=True)
+        got = PETSc.Vec().createSeq(len(wanted), comm=PETSc.COMM_SELF)
+        index = PETSc.IS().createGeneral(wanted.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+        scatter = PETSc.Scatter().create(owned, index, got, None)
+        scatter.scatter(owned, got, addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
+        parents = np.rint(got.getArray()).astype(np.int64)[back]
+        for obj in (got, index, scatter):
+            obj.destroy()
+        return parents
+
+    def release(self) -> None:
+        """Free the cached vectors of column_parents."""
+        for vec in self.__dict__.pop("_parents", {}).values():
+            vec.destroy()
+
+    def vector(self) -> PETSc.Vec:
+        """A zero vector over the unknowns (and the multiplier)."""
+        v = PETSc.Vec().createMPI((self.n_local, self.n + 1), comm=self.comm)
+        v.set(0.0)
+        return v
+
+    def yarn_map(self, y: MidSurface) -> PETSc.Mat:
+        """R: yarn y's dofs (owned rows) -> unknowns, one 1 per row."""
+        imap = y.V.dofmap.index_map
+        cols = self.yarn_unknowns(y, np.arange(imap.size_local, dtype=np.int32))  # owned rows in order
+        R = PETSc.Mat().createAIJ(((imap.size_local, imap.size_global), (self.n_local, self.n + 1)), comm=self.comm)
+        indptr = np.arange(imap.size_local + 1, dtype=PETSc.IntType)
+        R.setPreallocationCSR((indptr, cols.astype(PETSc.IntType), np.ones(len(cols), PETSc.ScalarType)))
+        R.assemble()
+        return R
+
+
+def seam_facet_tags(y: MidSurface) -> dolfinx.mesh.MeshTags:
+    """Interior facets of a yarn's submesh that touch a cell of the unit cell (tag 1): the interior
+    facets of its footprint and the periodic seam facets between the cell and the ghost strip."""
+    msh = y.mesh
+    tdim = msh.topology.dim
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    f2c = msh.topology.connectivity(tdim - 1, tdim)
+    n_facets = msh.topology.index_map(tdim - 1).size_local + msh.topology.index_map(tdim - 1).num_ghosts
+    kind = np.zeros(msh.topology.index_map(tdim).size_local + msh.topology.index_map(tdim).num_ghosts, np.int32)
+    kind[y.cell_kind.indices] = y.cell_kind.values
+    offsets, links = f2c.offsets[: n_facets + 1], f2c.array
+    two = np.flatnonzero(np.diff(offsets) == 2)
+    first, second = links[offsets[two]], links[offsets[two] + 1]
+    marked = two[(kind[first] == REAL) | (kind[second] == REAL)].astype(np.int32)
+    return dolfinx.mesh.meshtags(msh, tdim - 1, marked, np.ones(len(marked), np.int32))

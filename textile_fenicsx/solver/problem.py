@@ -1,0 +1,246 @@
+"""The assembled problem: plates, the pinned translation and the contact pairs over the unknowns.
+
+Energy (DESIGN.md 5), with x the unknowns (and one multiplier):
+    E(x) = 1/2 x^T K0 x - b0^T x + sum_pairs E_c(g_p),   g_p = g0_p + T_p x,
+K0 the plates (each yarn's bending + tension on its submesh, reduced by the periodic map R_i:
+K0 = sum R_i^T A_i R_i) and the pin, b0 their restoring force -A_i z0_i (and any load), E_c the
+contact energy of forms/contact.py. For the exact method E_c is quadratic (the apart spring) and
+joins the fixed part: K_fixed = K0 + sum T^T J T, b_fixed = b0 - sum T^T J g0.
+`ContactProblem` owns the PETSc objects it makes (K, K_fixed, vectors, the direct solver) and
+frees them in `destroy()`.
+"""
+
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import dolfinx
+import dolfinx.fem.petsc
+from textile_fenicsx.errors import TextileError
+from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
+from textile_fenicsx.meshes.midsurface import MidSurfaces
+from textile_fenicsx.solver.contact import (build_pairs, contact_nodes, gathered_unknowns, jacobian_values,
+                                            residual_values)
+from textile_fenicsx.solver.linear import DirectSolver, SolverError, negative_pivots, null_pivots
+from textile_fenicsx.solver.parameters import PlateParameters, SolverOptions
+from textile_fenicsx.solver.pattern import FixedPattern
+from textile_fenicsx.solver.periodic import Periodicity, seam_facet_tags
+
+__all__ = ["ContactProblem"]
+
+
+def assemble_plates(ms: MidSurfaces, numbering: Periodicity, pattern: FixedPattern, params: PlateParameters,
+                    loads: dict, kf: float) -> tuple[list, PETSc.Vec]:
+    """Each yarn's plate matrix into `pattern` (as unknowns), and the maps R_i and the load b0."""
+    p = params
+    R, b = [], numbering.vector()
+    for y in ms.yarns:
+        msh = y.mesh
+        dS = ufl.Measure("dS", msh, subdomain_data=seam_facet_tags(y), subdomain_id=1)
+        c = dolfinx.fem.Constant
+        Db1, Db2, Db12 = (c(msh, float(v)) for v in (p.Db1, p.Db2, p.Db12))
+        u, v = ufl.TrialFunction(y.V), ufl.TestFunction(y.V)
+        a = c0ip_bending(u, v, y.d, Db1, Db2, Db12, c(msh, p.alpha), y.dx, dS) \
+            + tension(u, v, y.d, c(msh, float(p.sigma1)), y.dx)
+        L = -ufl.action(a, y.z0)  # the energies act on z0 + w: the restoring force
+        if kf:
+            a = a + foundation(u, v, c(msh, float(kf)), y.dx)
+        if y.yarn in loads:  # a number [N/mm^2] or a function of the SpatialCoordinate
+            q = loads[y.yarn]
+            L = L + load(v, q(ufl.SpatialCoordinate(msh)) if callable(q) else c(msh, float(q)), y.dx)
+        A = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(a))
+        A.assemble()
+        bi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(L))
+        bi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        indptr, cols, vals = A.getValuesCSR()
+        rows = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
+        pattern.add_fixed(numbering.yarn_unknowns(y, rows), numbering.unknown(y.yarn, numbering.column_parents(y, cols)),
+                          vals)
+        R.append(numbering.yarn_map(y))
+        R[-1].multTransposeAdd(bi, b, b)
+        A.destroy()
+        bi.destroy()
+    return R, b
+
+
+class ContactProblem:
+    """Assembled operators of one textile's plates and contact pairs."""
+
+    def __init__(self, ms: MidSurfaces, params: PlateParameters = PlateParameters(),
+                 options: SolverOptions = SolverOptions(), loads: dict | None = None,
+                 foundation_stiffness: float = 0.0):
+        self.ms, self.params, self.options = ms, params, options
+        self.exact = options.method == "exact"
+        if self.exact and params.Et == 0:
+            raise TextileError("Et must be > 0 with the exact contact method: the spring where yarns are apart is "
+                               "all that holds a yarn's height against its neighbours (the default is 1e-4 N/mm^3)")
+        self.comm = ms.V.mesh.comm
+        self.numbering = numbering = Periodicity(ms)
+        pattern = FixedPattern(self.comm, numbering.start, numbering.n_local)
+        self.R, self.b_fixed = assemble_plates(ms, numbering, pattern, params, loads or {}, foundation_stiffness)
+        self._pin_translation(pattern, foundation_stiffness)
+        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact)
+        self.nodes = contact_nodes(self.pairs, need, numbering.image_dofs(ms)) if self.exact else None
+        if self.nodes is not None:
+            nr, nc = self.nodes.pattern()
+            rows, cols = np.concatenate([rows, nr]), np.concatenate([cols, nc])
+        pattern.freeze(rows, cols)
+        numbering.release()
+        self.pattern, self.need = pattern, need
+        self._gather, self._gathered = gathered_unknowns(self.b_fixed, need)
+        self.K, self.K_fixed = pattern.matrix(), pattern.matrix()
+        if self.exact:  # the apart spring is quadratic: it joins the fixed part
+            g0 = self.gaps(numbering.vector())
+            self._spring = [jacobian_values(p, g) for p, g in zip(self.pairs, g0)]
+            pattern.fill(self.K_fixed, self._variable(self._spring, 0.0))
+            self._add_contact(self.b_fixed, [-residual_values(p, g) for p, g in zip(self.pairs, g0)])
+        self.expected_negative_pivots = 1 if self.free_translation else 0
+        self.solver = DirectSolver(self.comm, options.petsc)
+        self.factorisations = 0
+
+    def _pin_translation(self, pattern: FixedPattern, kf: float) -> None:
+        """The common vertical translation (the energy's null space when there is no foundation).
+        Equivalent to a multiplier on the area-weighted mean of all w, but sparse: the net load is
+        spread over the area as that multiplier's reaction would be, one unknown is pinned through
+        the multiplier's row, and the solution is shifted to zero mean afterwards (a dense row made
+        MUMPS' analysis take minutes on coupons). With a foundation the multiplier row is 1."""
+        m = self.numbering.vector()
+        for y, R in zip(self.ms.yarns, self.R):
+            mi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(ufl.TestFunction(y.V) * y.dx))
+            mi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            R.multTransposeAdd(mi, m, m)
+            mi.destroy()
+        self.area_weights, self.area = m, m.sum()
+        self.free_translation = not kf
+        mult = self.numbering.multiplier
+        if self.free_translation:
+            self.b_fixed.axpy(-self.b_fixed.sum() / self.area, m)
+        entries = ([(0, mult), (mult, 0)] if self.free_translation else [(mult, mult)]) if self.comm.rank == 0 else []
+        pattern.add_fixed(np.array([e[0] for e in entries], np.int64), np.array([e[1] for e in entries], np.int64),
+                          np.ones(len(entries)))
+
+    def _variable(self, jacobians: list[np.ndarray], c) -> np.ndarray:
+        """Variable values in the pattern's order: the pairs' Jacobian entries, then the nodes'."""
+        parts = list(jacobians) + [np.zeros(0)]
+        if self.nodes is not None:
+            parts.append(self.nodes.values(np.broadcast_to(c, self.nodes.g0.shape).astype(float)))
+        return np.concatenate(parts)
+
+    def _add_contact(self, vec: PETSc.Vec, per_pair: list[np.ndarray]) -> None:
+        """vec += T^T r: each pair's values at its owned dofs, + at u's unknowns and - at l's."""
+        rows = [self.need[p.at_u[p.owned]] for p in self.pairs] + [self.need[p.at_l[p.owned]] for p in self.pairs]
+        vals = list(per_pair) + [-r for r in per_pair]
+        if rows:
+            vec.setValues(np.concatenate(rows).astype(PETSc.IntType), np.concatenate(vals),
+                          addv=PETSc.InsertMode.ADD_VALUES)
+        vec.assemble()
+
+    def add_at(self, vec: PETSc.Vec, rows: np.ndarray, values: np.ndarray) -> None:
+        """vec[rows] += values (global rows, any rank's); collective."""
+        vec.setValues(rows.astype(PETSc.IntType), values, addv=PETSc.InsertMode.ADD_VALUES)
+        vec.assemble()
+
+    def gather(self, x: PETSc.Vec) -> np.ndarray:
+        """The unknowns the pairs need, on this rank (a copy)."""
+        self._gather.scatter(x, self._gathered, addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
+        return self._gathered.getArray(readonly=True).copy()
+
+    def gaps(self, x: PETSc.Vec) -> list[np.ndarray]:
+        """Every pair's gap at x [mm] (ghost dofs included)."""
+        xs = self.gather(x)
+        return [p.gap(xs) for p in self.pairs]
+
+    def gradient(self, x: PETSc.Vec, g: list[np.ndarray]) -> PETSc.Vec:
+        """K_fixed x - b_fixed, plus the contact residual T^T dE_c/dg at gaps g (penalty)."""
+        r = self.b_fixed.duplicate()
+        self.K_fixed.mult(x, r)
+        r.axpy(-1.0, self.b_fixed)
+        if not self.exact:
+            self._add_contact(r, [residual_values(p, gp) for p, gp in zip(self.pairs, g)])
+        return r
+
+    def energy(self, x: PETSc.Vec, g: list[np.ndarray]) -> float:
+        """E(x) up to a constant (the exact method's nodal terms are the algorithm's own)."""
+        y = x.duplicate()
+        self.K_fixed.mult(x, y)
+        fixed = 0.5 * x.dot(y) - self.b_fixed.dot(x)
+        y.destroy()
+        if self.exact:
+            return fixed
+        local = 0.0
+        for p, gp in zip(self.pairs, g):
+            p.fill(gp)
+            local += dolfinx.fem.assemble_scalar(p.forms.energy)
+        return fixed + self.comm.allreduce(local, op=MPI.SUM)
+
+    def newton_matrix(self, g: list[np.ndarray] | None = None, c_nodes=0.0) -> PETSc.Mat:
+        """K = K0 + the contact Jacobian (the spring, or the penalty's at gaps g) + C^T diag(c_nodes) C,
+        factorised."""
+        jac = self._spring if self.exact else [jacobian_values(p, gp) for p, gp in zip(self.pairs, g)]
+        self.pattern.fill(self.K, self._variable(jac, c_nodes))
+        self.solver.factor(self.K)
+        self.factorisations += 1
+        return self.K
+
+    def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, what: str) -> None:
+        """x = K^-1 rhs with K's last factorisation (newton_matrix), checked: converged, finite, no
+        null pivots, and the inertia of a convex energy (one negative pivot, the pinning
+        multiplier's, or none with a foundation)."""
+        self.solver.solve(rhs, x)
+        ksp = self.solver.ksp
+        reason, nulls, negative = ksp.getConvergedReason(), null_pivots(ksp), negative_pivots(ksp)
+        if reason <= 0 or nulls > 0:
+            hint = ("with Et = 0 a yarn that touches no other yarn is held by nothing: give Et > 0"
+                    if self.params.Et == 0 else "check the stiffnesses (Db1, Db2, sigma1) for zeros")
+            raise SolverError(f"the linear system is singular at {what} (PETSc reason {reason}, {nulls} null "
+                              f"pivots): {hint}")
+        if negative >= 0 and negative != self.expected_negative_pivots:
+            raise SolverError(f"the energy is not convex at {what}: its matrix has {negative} negative pivots where "
+                              f"{self.expected_negative_pivots} is expected (a mesh the bending penalty cannot hold?)")
+        if not np.isfinite(x.norm()):
+            raise SolverError(f"the solution is not finite (NaN or Inf) at {what}")
+
+    def penetration(self, g: list[np.ndarray]) -> tuple[float, float]:
+        """The largest -g at the owned overlap dofs [mm] (0 when none penetrates) and the volume the
+        gap field says, the integral of max(0, -g) over the overlaps [mm^3]."""
+        worst, volume = 0.0, 0.0
+        for p, gp in zip(self.pairs, g):
+            if len(p.owned):
+                worst = max(worst, float(np.max(-gp[p.owned])))
+            p.fill(gp)
+            volume += dolfinx.fem.assemble_scalar(p.forms.penetration)
+        return self.comm.allreduce(worst, op=MPI.MAX), self.comm.allreduce(volume, op=MPI.SUM)
+
+    def displacements(self, x: PETSc.Vec) -> list[dolfinx.fem.Function]:
+        """Per yarn w = R_i x, after the common translation is set to zero area-weighted mean."""
+        if self.free_translation:
+            ones = x.duplicate()
+            ones.set(1.0)
+            ones.setValue(self.numbering.multiplier, 0.0)
+            ones.assemble()
+            x.axpy(-self.area_weights.dot(x) / self.area, ones)
+            ones.destroy()
+        w = []
+        for y, R in zip(self.ms.yarns, self.R):
+            w.append(dolfinx.fem.Function(y.V, name="w"))
+            R.mult(x, w[-1].x.petsc_vec)
+            w[-1].x.scatter_forward()
+        return w
+
+    def fields(self, g: list[np.ndarray], active: list[np.ndarray]) -> tuple[list, list]:
+        """Per yarn, its gap to the yarn below [mm] and where contact is active (1), for output."""
+        gaps, states = [], []
+        for y in self.ms.yarns:
+            gaps.append(dolfinx.fem.Function(y.V, name="gap_below"))
+            states.append(dolfinx.fem.Function(y.V, name="contact"))
+        for p, gp, a in zip(self.pairs, g, active):
+            gaps[p.upper].x.array[p.dofs] = gp
+            states[p.upper].x.array[p.dofs] = a.astype(float)
+        return gaps, states
+
+    def destroy(self) -> None:
+        """Free the PETSc objects (the factors first)."""
+        self.solver.destroy()
+        for obj in (self.K, self.K_fixed, self.b_fixed, self.area_weights, self._gather, self._gathered, *self.R):
+            obj.destroy()
