@@ -31,16 +31,16 @@ SATIN = REPO / "reference" / "models" / "satin4.tg3"
 
 # name: (model, seed, repeats (nx, ny[, "free": free edges]), method, ranks)
 CASES = {
-    "satin4 1.0": ("satin4", 1.0, None, "penalty", (1, 2)),
-    "satin4 0.5": ("satin4", 0.5, None, "penalty", (1, 2)),
-    "satin4 0.25": ("satin4", 0.25, None, "penalty", (1, 2)),
-    "satin4 0.125": ("satin4", 0.125, None, "penalty", (1, 2)),
-    "satin4 0.25 augmented": ("satin4", 0.25, None, "augmented", (1,)),
-    "orthogonal 0.5": ("orthogonal", 0.5, None, "penalty", (1, 2)),
-    "orthogonal 0.5 augmented": ("orthogonal", 0.5, None, "augmented", (1,)),
-    "satin4 4x4 0.25": ("satin4", 0.25, (4, 4), "penalty", (1, 2)),
-    "satin4 4x4 0.25 free edges": ("satin4", 0.25, (4, 4, "free"), "penalty", (1, 2)),
-    "satin4 8x8 0.25": ("satin4", 0.25, (8, 8), "penalty", (2,)),
+    "satin4 1.0": ("satin4", 1.0, None, "exact", (1, 2)),
+    "satin4 0.5": ("satin4", 0.5, None, "exact", (1, 2)),
+    "satin4 0.25": ("satin4", 0.25, None, "exact", (1, 2)),
+    "satin4 0.125": ("satin4", 0.125, None, "exact", (1, 2)),
+    "satin4 0.25 penalty": ("satin4", 0.25, None, "penalty", (1,)),
+    "orthogonal 0.5": ("orthogonal", 0.5, None, "exact", (1, 2)),
+    "orthogonal 0.5 penalty": ("orthogonal", 0.5, None, "penalty", (1,)),
+    "satin4 4x4 0.25": ("satin4", 0.25, (4, 4), "exact", (1, 2)),
+    "satin4 4x4 0.25 free edges": ("satin4", 0.25, (4, 4, "free"), "exact", (1, 2)),
+    "satin4 8x8 0.25": ("satin4", 0.25, (8, 8), "exact", (2,)),
 }
 QUICK = ("satin4 1.0", "satin4 0.5", "satin4 0.25", "satin4 0.125", "orthogonal 0.5")
 
@@ -60,9 +60,8 @@ def one_case(name: str) -> dict:
     from textile_fenicsx.coupon import tile
     from textile_fenicsx.meshes.midsurface import mid_surfaces
     from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
-    from textile_fenicsx.outputs import write_run
-    from textile_fenicsx.pipeline import Run
-    from textile_fenicsx.solver import ContactProblem, PlateParameters, SolverOptions
+    from textile_fenicsx.pipeline import Run, Settings
+    from textile_fenicsx.solver import ContactProblem, SolverOptions, solve_problem
     from textile_fenicsx.weaves import build
 
     comm = MPI.COMM_WORLD
@@ -76,7 +75,7 @@ def one_case(name: str) -> dict:
             time.sleep(0.02)
 
     threading.Thread(target=sample, daemon=True).start()
-    params, options, mesh = PlateParameters(), SolverOptions(method=method), MeshOptions(seed)
+    settings = Settings(MeshOptions(seed), solver=SolverOptions(method=method))
 
     def stage(label, f):
         comm.barrier()
@@ -96,22 +95,20 @@ def one_case(name: str) -> dict:
         return tile(t, *repeats[:2], free_edges="free" in repeats) if repeats else t
 
     textile = stage("model", read)
-    projected = stage("mesh", lambda: projected_mesh(textile, mesh, comm, log=None))
-    ms = stage("midsurfaces", lambda: (mid_surfaces(projected, log=None), release_freed_memory())[0])
-    problem = stage("assemble", lambda: (ContactProblem(ms, params, options, log=None), release_freed_memory())[0])
-    solution = stage("solve", problem.solve)
-    corrected = stage("correct", lambda: corrected_textile(textile, solution.w, spacing=min(seed / 2, 0.25),
-                                                           n_points=64))
-    result = Run(textile, ms, solution, {}, problem)
+    projected = stage("mesh", lambda: projected_mesh(textile, settings.mesh, comm))
+    ms = stage("midsurfaces", lambda: (mid_surfaces(projected), release_freed_memory())[0])
+    problem = stage("assemble", lambda: (ContactProblem(ms, settings.plate, settings.solver), release_freed_memory())[0])
+    solution = stage("solve", lambda: solve_problem(problem))
+    corrected = stage("correct", lambda: corrected_textile(textile, solution.w,
+                                                           settings.correction.station_spacing(seed),
+                                                           settings.correction.section_points))
+    result = Run(textile, settings, ms, solution, corrected)
     out = Path(os.environ.get("TEXTILE_FENICSX_BENCH_TMP", "/tmp")) / f"bench_{os.getpid() if comm.rank == 0 else 0}"
     out = Path(comm.bcast(str(out), root=0))
-    stage("export", lambda: write_run(result, corrected, out / "core", params, options, mesh, figures=False,
-                                      fields=False, surfaces=False))
-    written = json.loads((out / "core" / "metrics.json").read_text()) if comm.rank == 0 else None
-    times["metrics"] = comm.bcast(written["time_s"]["metrics"] if written else None, root=0)
-    times["export"] -= times["metrics"]
+    stage("metrics", lambda: result.metrics)
+    stage("export", lambda: result.write(out / "core", figures=False, fields=False, surfaces=False))
     if repeats is None:  # coupons: the surfaces of every yarn copy take minutes, skipped
-        stage("extras", lambda: write_run(result, corrected, out / "full", params, options, mesh, figures=False))
+        stage("extras", lambda: result.write(out / "full", figures=False))
     else:
         times["extras"] = float("nan")
     if comm.rank == 0:
@@ -124,9 +121,9 @@ def one_case(name: str) -> dict:
         "case": name, "ranks": comm.size, "seed": seed, "repeats": repeats, "method": method,
         "dofs": int(sum(y.V.dofmap.index_map.size_global for y in ms.yarns)),
         "cells": int(projected.stats["cells"]), "iterations": solution.iterations,
-        "updates": solution.updates, "converged": bool(solution.converged),
+        "converged": bool(solution.converged), "verdict": bool(result.verdict["passed"]),
         "time_s": {**{k: times[k] for k in core}, "end_to_end": sum(times[k] for k in core),
-                   "extras": times["extras"], "factor": solution.times.get("factor")},
+                   "extras": times["extras"]},
         "memory_mb": {"peak_sum": comm.allreduce(peak, op=MPI.SUM), "peak_max_rank": comm.allreduce(peak, op=MPI.MAX),
                       "after_stage_sum": memory,
                       "stage_peak_max_rank": {k: comm.allreduce(peaks.get(k, 0.0), op=MPI.MAX) for k in memory},
@@ -144,10 +141,9 @@ def _run(cmd: list[str]) -> str:
 def driver(names: list[str], out: Path) -> None:
     print("bench: warming the form cache", file=sys.stderr, flush=True)
     for warm in ("satin4", "orthogonal"):
-        _run([sys.executable, "-c", "from textile_fenicsx.pipeline import run; from textile_fenicsx.weaves import build; "
-              "from textile_fenicsx.meshes.projected import MeshOptions; from textile_fenicsx.solver import SolverOptions; "
-              f"[run(build({'crowfoot_satin' if warm == 'satin4' else 'orthogonal'!r}), MeshOptions(1.0), "
-              "options=SolverOptions(method=m), log=None) for m in ('penalty', 'augmented')]"])
+        _run([sys.executable, "-c", "import textile_fenicsx as tfx; "
+              f"[tfx.solve(tfx.build({'crowfoot_satin' if warm == 'satin4' else 'orthogonal'!r}), seed=1.0, "
+              "method=m) for m in ('exact', 'penalty')]"])
     records = []
     for name in names:
         for ranks in CASES[name][4]:

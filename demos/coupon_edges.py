@@ -26,18 +26,15 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from textile_fenicsx.correct import corrected_textile
-from textile_fenicsx.coupon import tile
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.pipeline import run
-from textile_fenicsx.weaves import build
+import textile_fenicsx as tfx
+from textile_fenicsx.correct import CorrectionOptions
 
 comm = MPI.COMM_WORLD
 seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))
 n = int(os.environ.get("TEXTILE_FENICSX_REPEATS", "3"))
 out = Path(os.environ.get("TEXTILE_FENICSX_OUT", "output/coupon_edges"))
 say = print if comm.rank == 0 else (lambda *_: None)
-unit = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
+unit = tfx.build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
 # -
 
 # ## The two coupons
@@ -48,12 +45,12 @@ unit = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.
 # +
 corrected = {}
 for label, free in (("periodic", False), ("free edges", True)):
-    coupon = tile(unit, n, n, free_edges=free)
-    result = run(coupon, MeshOptions(seed), comm=comm, log=None)
+    result = tfx.solve(unit, seed=seed, repeat=(n, n), free_edges=free, comm=comm,
+                       correction=CorrectionOptions(section_points=48))
     s = result.summary()
-    say(f"{label}: {len(coupon.yarns)} yarns, {s['dofs']} dofs, {result.solution.iterations} contact "
+    say(f"{label}: {len(result.textile.yarns)} yarns, {s['dofs']} dofs, {result.solution.iterations} contact "
         f"iterations, max |w| {s['max_abs_w']:.3f} mm")
-    corrected[label] = corrected_textile(coupon, result.solution.w, spacing=min(seed / 2, 0.25), n_points=48)
+    corrected[label] = result.corrected
 # -
 
 # ## How far the edges reach

@@ -22,8 +22,7 @@ from mpi4py import MPI
 
 from textile_fenicsx.fields import evaluate
 from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.pipeline import run
-from textile_fenicsx.solver import SolverOptions
+from textile_fenicsx.pipeline import Settings, run
 from textile_fenicsx.weaves import build
 
 comm = MPI.COMM_WORLD
@@ -54,7 +53,7 @@ def centre_heights(result):
 rows, previous = [], None
 for seed in seeds:
     start = time.perf_counter()
-    result = run(textile, MeshOptions(seed), options=SolverOptions(method="augmented"), comm=comm, log=None)
+    result = run(textile, Settings(MeshOptions(seed)), comm=comm)
     z = centre_heights(result)
     s = result.summary()
     change = float(np.sqrt(np.nanmean((z - previous) ** 2))) if previous is not None else float("nan")

@@ -19,23 +19,17 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from textile_fenicsx.correct import corrected_textile
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.outputs import write_run
-from textile_fenicsx.pipeline import run
-from textile_fenicsx.solver import PlateParameters, SolverOptions
-from textile_fenicsx.weaves import build
+import textile_fenicsx as tfx
 
 comm = MPI.COMM_WORLD
 seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))
 out = Path(os.environ.get("TEXTILE_FENICSX_OUT", "output/orthogonal_3d"))
-say = print if comm.rank == 0 else (lambda *_: None)
+tfx.show_progress()
 # -
 
-textile = build("orthogonal")
+textile = tfx.build("orthogonal")
 textile.name = "orthogonal_3d"
-params, options, mesh = PlateParameters(), SolverOptions(method="augmented"), MeshOptions(seed)
-result = run(textile, mesh, params, options, comm, log=say)
-corrected = corrected_textile(textile, result.solution.w, spacing=min(seed / 2, 0.25), n_points=64)
-write_run(result, corrected, out, params, options, mesh, log=say)
-say(f"orthogonal_3d: outputs in {out}/")
+run = tfx.solve(textile, seed=seed, comm=comm)
+run.write(out)
+if comm.rank == 0:
+    print(f"orthogonal_3d: check {'passed' if run.verdict['passed'] else 'FAILED'}; outputs in {out}/")

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from textile_fenicsx.correct import corrected_textile
+from textile_fenicsx.correct import CorrectionOptions, corrected_textile
 from textile_fenicsx.meshes.midsurface import mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
-from textile_fenicsx.solver import ContactProblem, PlateParameters, SolverOptions
+from textile_fenicsx.solver import PlateParameters, solve
 from textile_fenicsx.weaves import build
 
 comm = MPI.COMM_WORLD
@@ -29,7 +29,8 @@ seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))
 out = Path(os.environ.get("TEXTILE_FENICSX_OUT", "output/parameter_study"))
 say = print if comm.rank == 0 else (lambda *_: None)
 textile = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
-ms = mid_surfaces(projected_mesh(textile, MeshOptions(seed), comm, log=None), log=None)
+ms = mid_surfaces(projected_mesh(textile, MeshOptions(seed), comm))
+correction = CorrectionOptions(section_points=48)
 # -
 
 # Each case keeps a little of every stiffness that is "off" (1e-3) so the plates stay determined.
@@ -40,8 +41,8 @@ cases = {"Db1=1 Db2=1 sigma1=1": (1, 1, 1), "Db1=1 Db2=0 sigma1=0": (1, 0, 0),
 results = {}
 for label, (b1, b2, s1) in cases.items():
     p = PlateParameters(Db1=max(b1, 1e-3), Db2=max(b2, 1e-3), sigma1=max(s1, 1e-3))
-    sol = ContactProblem(ms, p, SolverOptions(method="augmented"), log=None).solve()
-    results[label] = corrected_textile(textile, sol.w, spacing=min(seed / 2, 0.25), n_points=48)
+    sol = solve(ms, p)
+    results[label] = corrected_textile(textile, sol.w, correction.station_spacing(seed), correction.section_points)
     say(f"{label}: {sol.iterations} iterations, max |w| "
         f"{comm.allreduce(max(float(np.abs(w.x.array).max(initial=0)) for w in sol.w), op=MPI.MAX):.3f} mm")
 # -

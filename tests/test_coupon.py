@@ -12,7 +12,7 @@ from textile_fenicsx.errors import TextileError
 from textile_fenicsx.fields import evaluate
 from textile_fenicsx.meshes.projected import MeshOptions
 from textile_fenicsx.metrics import measure
-from textile_fenicsx.pipeline import run
+from textile_fenicsx.pipeline import Settings, run
 from textile_fenicsx.tg3 import read_tg3
 from textile_fenicsx.weaves import build
 
@@ -52,8 +52,8 @@ def test_coupon_solution_repeats_the_unit_cell():
     # unit cell's in every repeat (measured: to 5e-6 of max |w|, at footprint edges, where the
     # vertical rays graze the yarn surfaces; 1e-9 on average)
     t = build("plain", spacing=2.0, width=1.8, height=0.3, thickness=0.6)
-    unit = run(t, MeshOptions(0.5), log=None)
-    coupon = run(tile(t, 2, 3), MeshOptions(0.5), log=None)
+    unit = run(t, Settings(MeshOptions(0.5)))
+    coupon = run(tile(t, 2, 3), Settings(MeshOptions(0.5)))
     assert coupon.solution.converged and coupon.solution.iterations == unit.solution.iterations
     comm = MPI.COMM_WORLD
     x0, _, y0, _ = t.cell.bounds
@@ -114,8 +114,8 @@ def test_free_coupon_is_symmetric_and_its_edge_effect_decays():
     # it (Saint-Venant: the edge disturbance decays within a cell).
     comm = MPI.COMM_WORLD
     unit = build("plain")
-    free = run(tile(unit, 3, 3, free_edges=True), MeshOptions(0.5), log=None)
-    periodic = run(unit, MeshOptions(0.5), log=None)
+    free = run(tile(unit, 3, 3, free_edges=True), Settings(MeshOptions(0.5)))
+    periodic = run(unit, Settings(MeshOptions(0.5)))
     assert free.solution.converged
     ys, w = free.midsurfaces.yarns, free.solution.w
     x0, x1, y0, y1 = free.textile.cell.bounds

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from textile_fenicsx.config import load_model, save_model
 from textile_fenicsx.errors import FormatError, TextileError
-from textile_fenicsx.export import write_surfaces
+from textile_fenicsx.surfaces import YarnSurfaces, is_closed
 from textile_fenicsx.metrics import measure
 from textile_fenicsx.sections import Ellipse, Polygon
 from textile_fenicsx.textile import Cell, Textile
@@ -112,17 +112,19 @@ def test_toml_weave_description(tmp_path):
 @pytest.mark.serial
 def test_surface_export_is_closed_and_matches_volume(tmp_path):
     t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
-    write_surfaces(t, tmp_path / "s.vtu")
-    write_surfaces(t, tmp_path / "s.stl")
+    surfaces = YarnSurfaces.build(t)
+    surfaces.write(tmp_path / "s.vtu")
+    surfaces.write(tmp_path / "s.stl")
     mesh = meshio.read(tmp_path / "s.vtu")
     assert sorted(np.unique(mesh.cell_data["yarn"][0])) == list(range(8))
     assert len(meshio.read(tmp_path / "s.stl").cells_dict["triangle"]) == len(mesh.cells_dict["triangle"])
     # Each clipped yarn surface is closed: its enclosed volume equals the ray-cast volume (grid error).
     m = measure(t, 300)
-    for i in (0, 5):
-        surf = t.surface(i)
-        assert surf.n_open_edges == 0
-        assert surf.volume == pytest.approx(m["yarn_volume"]["per_yarn"][i], rel=3e-3)
+    assert surfaces.open_yarns == []
+    volumes = surfaces.volumes(len(t.yarns))
+    for i in range(len(t.yarns)):
+        assert is_closed(surfaces.triangles[surfaces.yarn == i])
+        assert volumes[i] == pytest.approx(m["yarn_volume"]["per_yarn"][i], rel=3e-3)
 
 
 @pytest.mark.serial

@@ -10,12 +10,10 @@ import pytest
 from mpi4py import MPI
 
 from conftest import REPO
-from textile_fenicsx.correct import corrected_textile
+from textile_fenicsx.correct import CorrectionOptions
 from textile_fenicsx.meshes.projected import MeshOptions
 from textile_fenicsx.metrics import measure
-from textile_fenicsx.outputs import write_run
-from textile_fenicsx.pipeline import run
-from textile_fenicsx.solver import PlateParameters, SolverOptions
+from textile_fenicsx.pipeline import Settings, run
 from textile_fenicsx.tg3 import read_tg3
 from textile_fenicsx.weaves import build
 
@@ -23,17 +21,15 @@ from textile_fenicsx.weaves import build
 @pytest.fixture(scope="module")
 def satin_run():
     t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)
-    params, options, mesh = PlateParameters(), SolverOptions(method="augmented"), MeshOptions(1.0)
-    result = run(t, mesh, params, options, log=None)
-    corrected = corrected_textile(t, result.solution.w, spacing=0.25, n_points=48)
-    return result, corrected, (params, options, mesh)
+    result = run(t, Settings(MeshOptions(1.0), correction=CorrectionOptions(spacing=0.25, section_points=48)))
+    return result, result.corrected
 
 
 @pytest.mark.mpi
 def test_correction_removes_interpenetration(satin_run):
     # Issue 6 (there at seed 0.5, here 1.0 for CI time): volume after <= 1 % of before, depth <= 1 %
     # of the thinnest yarn height (0.35 mm); the yarns keep their volume (sections keep thickness).
-    result, corrected, _ = satin_run
+    result, corrected = satin_run
     before, after = measure(result.textile, 150, MPI.COMM_WORLD), measure(corrected, 150, MPI.COMM_WORLD)
     assert after["interpenetration"]["volume"] <= 0.01 * before["interpenetration"]["volume"]
     assert after["interpenetration"]["max_depth"] <= 0.01 * 0.35
@@ -46,11 +42,11 @@ def test_correction_of_a_manufactured_lift_and_twist(satin_run):
     # w = a + b (y - y_c) on a weft of the satin (its centreline is the line y = y_c): the
     # centreline rises by a exactly, each section turns by atan(b) about the centreline (points at
     # across-fibre offset u rise by b u, times the vertical part of the new up, which is the old one
-    # up to the spline through the stations, since a uniform lift does not change the path); thickness is kept at every u. P2 holds this
-    # linear w exactly, so the check is to round-off.
+    # up to the spline through the stations, since a uniform lift does not change the path) and
+    # keeps its area. P2 holds this linear w exactly, so the check is to round-off.
     import dolfinx
 
-    result, _, _ = satin_run
+    result, _ = satin_run
     t = result.textile
     i = next(k for k, y in enumerate(t.yarns) if abs(y.period[1]) < 1e-9)
     yarn, ms = t.yarns[i], result.midsurfaces.yarns[i]
@@ -72,13 +68,15 @@ def test_correction_of_a_manufactured_lift_and_twist(satin_run):
     y_minus_yc = old[..., 0] * side[:, None, 1]  # u runs along side = tangent x up (here -y)
     squeeze = np.minimum(1.0, new_up[:, 2] / up[:, 2])[:, None]  # keeps the vertical thickness
     assert np.all(squeeze > 0.99)
-    assert np.allclose(got[..., 1], old[..., 1] * squeeze + b * y_minus_yc * new_up[:, None, 2], atol=1e-9)
+    # the turn is a shear (area kept) and the squeeze is undone to keep the section's area:
+    # v = (v0 squeeze + b (y - y_c) up_z) / squeeze
+    assert np.allclose(got[..., 1], old[..., 1] + b * y_minus_yc * new_up[:, None, 2] / squeeze, atol=1e-9)
 
 
 @pytest.mark.mpi
 def test_outputs_complete_and_corrected_tg3_reads_back(satin_run, mpi_tmp_path):
-    result, corrected, (params, options, mesh) = satin_run
-    out = write_run(result, corrected, mpi_tmp_path / "run", params, options, mesh, figures=False)
+    result, corrected = satin_run
+    out = result.write(mpi_tmp_path / "run", figures=False)
     if MPI.COMM_WORLD.rank == 0:
         names = sorted(p.name for p in out.iterdir())
         assert names == ["corrected.json", "corrected.tg3", "fields", "initial.json", "metrics.json",

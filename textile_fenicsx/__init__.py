@@ -1,8 +1,13 @@
 """textile_fenicsx: predicts the real geometry of woven textiles by plate energy minimisation.
 
-Data flows one way (DESIGN.md section 2):
+    import textile_fenicsx as tfx
+    run = tfx.solve(tfx.read("satin4.tg3"), seed=0.5)
+    run.corrected, run.metrics, run.write("out/")
+
+Data flows one way (docs/DESIGN.md section 2):
 textile model -> projected mesh (`textile_fenicsx.meshes`) -> UFL forms (`textile_fenicsx.forms`)
--> solve -> corrected textile -> exports.
+-> solve (`textile_fenicsx.solver`) -> corrected textile (`correct`, checked by `verify`) -> exports.
+The one-call functions (api.py) import the numerical stack only when called.
 """
 
 from pathlib import Path as _Path
@@ -24,3 +29,8 @@ def _mount_source_subpackages() -> None:
 
 
 _mount_source_subpackages()
+
+
+from textile_fenicsx.api import build, read, show_progress, solve  # noqa: E402
+
+__all__ = ["__version__", "build", "read", "show_progress", "solve"]

@@ -9,6 +9,8 @@ waits forever in a collective call.
 
 import argparse
 import json
+import logging
+import os
 import signal
 import sys
 import time
@@ -63,7 +65,7 @@ def _build(args) -> int:
     from mpi4py import MPI
 
     from textile_fenicsx.config import save_model
-    from textile_fenicsx.export import write_surfaces
+    from textile_fenicsx.surfaces import YarnSurfaces
     from textile_fenicsx.plotting import plot_textile
     from textile_fenicsx.tg3 import write_tg3
     from textile_fenicsx.weaves import build
@@ -87,13 +89,13 @@ def _build(args) -> int:
         return 0
     start = time.perf_counter()
     stem = args.name
+    surfaces = YarnSurfaces.build(textile)
     with staged_folder(args.out) as tmp:
         steps = [("model", lambda: save_model(textile, tmp / f"{stem}.json")),
                  ("TexGen", lambda: write_tg3(textile, tmp / f"{stem}.tg3")),
-                 ("surfaces", lambda: (write_surfaces(textile, tmp / f"{stem}.vtu"),
-                                       write_surfaces(textile, tmp / f"{stem}.stl")))]
+                 ("surfaces", lambda: (surfaces.write(tmp / f"{stem}.vtu"), surfaces.write(tmp / f"{stem}.stl")))]
         if not args.no_picture:
-            steps.append(("picture", lambda: plot_textile(textile, tmp / f"{stem}.png")))
+            steps.append(("picture", lambda: plot_textile(textile, surfaces, tmp / f"{stem}.png")))
         for label, step in steps:
             print(f"build: writing {label} ({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
             step()
@@ -113,12 +115,11 @@ def _mesh(args) -> int:
     from textile_fenicsx.plotting import plot_projected_mesh
 
     comm = MPI.COMM_WORLD
-    log = (lambda msg: print(msg, file=sys.stderr, flush=True)) if comm.rank == 0 else None
     textile = _repeated(load_model(args.model), args)
     options = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit)
     start = time.perf_counter()
-    projected = projected_mesh(textile, options, comm, log=log)
-    ms = mid_surfaces(projected, log=log)
+    projected = projected_mesh(textile, options, comm)
+    ms = mid_surfaces(projected)
     stats = mesh_statistics(ms)
     stats["time_s"] = time.perf_counter() - start
     if args.out:
@@ -149,46 +150,42 @@ def load_input(text: str):
 def _solve(args) -> int:
     from mpi4py import MPI
 
-    from textile_fenicsx.correct import corrected_textile
+    from textile_fenicsx.correct import CorrectionOptions
     from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.outputs import write_run
-    from textile_fenicsx.pipeline import run
-    from textile_fenicsx.solver import PlateParameters, SolverOptions
+    from textile_fenicsx.outputs import write_failed
+    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.solver import PlateParameters, SolverError, SolverOptions
 
     comm = MPI.COMM_WORLD
-    log = (lambda msg: print(msg, file=sys.stderr, flush=True)) if comm.rank == 0 else None
     t = time.perf_counter()
     textile = _repeated(load_input(args.input), args)
     model_time = time.perf_counter() - t
-    params = PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et)
-    options = SolverOptions(method=args.method, max_iterations=args.max_iterations,
-                            penetration_tol=args.penetration_tol)
-    mesh = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit)
-    result = run(textile, mesh, params, options, comm, log)
-    if not result.solution.converged:
-        from textile_fenicsx.outputs import write_failed
-        from textile_fenicsx.solvers import SolverError
-
+    settings = Settings(
+        mesh=MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit),
+        plate=PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et),
+        solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
+                             penetration_tol=args.penetration_tol),
+        correction=CorrectionOptions())
+    result = run(textile, settings, comm)
+    result.times["model"] = model_time
+    if not result.converged:
         where = ""
         if args.out:
-            write_failed(args.out, result.solution, params, options, mesh, comm)
+            write_failed(result, args.out)
             where = f"; {args.out}/ holds only FAILED and log.json (the iteration log)"
-        raise SolverError(f"{result.solution.reason} (try --method augmented, a larger --max-iterations, "
-                          f"or a larger --ec){where}")
-    t = time.perf_counter()
-    corrected = corrected_textile(textile, result.solution.w, spacing=min(args.seed / 2, 0.25), n_points=64)
-    correct_time = time.perf_counter() - t
-    times = {"model": model_time, "correct": correct_time}
+        hint = " (try a larger --max-iterations)" if "cap" in result.solution.reason else ""
+        raise SolverError(f"{result.solution.reason}{hint}{where}")
+    verdict = result.verdict
     if args.out:
-        out = write_run(result, corrected, args.out, params, options, mesh, figures=not args.no_figures,
-                        log=log, extra_times=times)
+        out = result.write(args.out, figures=not args.no_figures)
         if comm.rank == 0:
             print((out / "metrics.json").read_text())
-    else:
-        summary = result.summary()
-        summary["time_s"] = {**times, **summary["time_s"]}
-        if comm.rank == 0:
-            print(json.dumps(summary, indent=1))
+    elif comm.rank == 0:
+        print(json.dumps({**result.summary(), "verdict": verdict}, indent=1))
+    if not verdict["passed"]:
+        kept = f"; the outputs are kept in {args.out}/ (rejected.tg3, FAILED)" if args.out else ""
+        raise SolverError("the corrected model fails its check: "
+                          + "; ".join(f["message"] for f in verdict["failures"]) + kept)
     return 0
 
 
@@ -312,10 +309,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sigma1", type=float, default=1.0, help="fibre tension [N/mm] (1)")
     p.add_argument("--ec", type=float, default=1e3, help="contact stiffness where yarns penetrate [N/mm^3] (1e3)")
     p.add_argument("--et", type=float, default=1e-4, help="contact stiffness where yarns are apart [N/mm^3] (1e-4)")
-    p.add_argument("--method", choices=["penalty", "augmented"], default="penalty",
-                   help="penalty (the paper's) or augmented (penetration below --penetration-tol, whatever Ec)")
-    p.add_argument("--penetration-tol", type=float, default=1e-4, help="augmented: penetration tolerance [mm]")
-    p.add_argument("--max-iterations", type=int, default=60, help="cap on contact iterations (60)")
+    p.add_argument("--method", choices=["exact", "penalty"], default="exact",
+                   help="exact (default: no penetration at the mesh nodes, to --penetration-tol) or penalty "
+                   "(the paper's: contact stiffness --ec, some penetration remains)")
+    p.add_argument("--penetration-tol", type=float, default=1e-6,
+                   help="exact method: penetration and complementarity tolerance at the nodes [mm] (1e-6)")
+    p.add_argument("--max-iterations", type=int, default=100, help="cap on contact iterations (100)")
     p.set_defaults(run=_solve)
     return parser
 
@@ -342,6 +341,23 @@ def _fail(code: int, message: str) -> int:
     return code
 
 
+def _log_to_stderr() -> None:
+    """Progress lines (the library's logging, INFO) to stderr, from rank 0 only."""
+    rank = 0
+    if "mpi4py.MPI" in sys.modules or "OMPI_COMM_WORLD_RANK" in os.environ:
+        rank = int(os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")))
+    root = logging.getLogger("textile_fenicsx")
+    root.handlers.clear()
+    if rank == 0:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        root.addHandler(handler)
+        root.setLevel(logging.INFO)
+    else:
+        root.addHandler(logging.NullHandler())
+    root.propagate = False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -349,8 +365,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_INPUT
     signal.signal(signal.SIGTERM, _interrupt)  # Ctrl-C already raises KeyboardInterrupt
-    from textile_fenicsx.solvers import SolverError
+    from textile_fenicsx.errors import SolverError
 
+    _log_to_stderr()
     try:
         return args.run(args)
     except TextileError as e:

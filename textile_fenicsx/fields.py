@@ -7,8 +7,11 @@ import dolfinx
 import dolfinx.geometry
 
 
-def evaluate(f: dolfinx.fem.Function, xy: np.ndarray, comm: MPI.Comm | None = None) -> np.ndarray:
-    """Values of scalar f at in-plane points xy (N, 2), the same on every rank; NaN outside f's mesh.
+def evaluate(f: dolfinx.fem.Function, xy: np.ndarray, comm: MPI.Comm | None = None,
+             extrapolate: bool = False) -> np.ndarray:
+    """Values of scalar f at in-plane points xy (N, 2), the same on every rank; NaN outside f's mesh,
+    or with `extrapolate` the polynomial of the nearest cell there (of the nearest point of it,
+    for points farther out than that cell's size).
 
     Every rank must pass the same points. A point on a rank boundary is taken from the lowest rank
     that holds a cell containing it.
@@ -34,4 +37,34 @@ def evaluate(f: dolfinx.fem.Function, xy: np.ndarray, comm: MPI.Comm | None = No
     out = np.empty_like(mine)
     comm.Allreduce(mine, out, op=MPI.SUM)
     out[best == comm.size] = np.nan
+    if extrapolate and np.any(best == comm.size):
+        outside = np.flatnonzero(best == comm.size)
+        out[outside] = _nearest_cell_values(f, points[outside], tree, comm)
     return out
+
+
+def _nearest_cell_values(f: dolfinx.fem.Function, points: np.ndarray, tree, comm: MPI.Comm) -> np.ndarray:
+    """f at points outside its mesh from the nearest owned cell (collective): that cell's polynomial
+    at the point when it lies within the cell's size of it, else at the cell's nearest point."""
+    msh = f.function_space.mesh
+    n_owned = msh.topology.index_map(2).size_local
+    values, dist = np.full(len(points), np.nan), np.full(len(points), np.inf)
+    if n_owned:
+        midpoints = dolfinx.geometry.create_midpoint_tree(msh, 2, np.arange(n_owned, dtype=np.int32))
+        cells = dolfinx.geometry.compute_closest_entity(tree, midpoints, msh, points)
+        x = msh.geometry.x
+        dofs = msh.geometry.dofmap
+        for k, (p, c) in enumerate(zip(points, cells)):
+            if c < 0:
+                continue
+            vertices = x[dofs[c]]
+            gap = dolfinx.geometry.compute_distance_gjk(vertices, p)  # from p to the cell's nearest point
+            size = np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1))
+            dist[k] = np.linalg.norm(gap)
+            at = p if dist[k] <= size else p + gap
+            values[k] = f.eval(at[None, :], np.array([c], np.int32))[0]
+    # the value from the rank whose cell is nearest (lowest rank on ties)
+    every = comm.allgather((dist, values))
+    d = np.array([e[0] for e in every])
+    v = np.array([e[1] for e in every])
+    return v[np.argmin(d, axis=0), np.arange(len(points))]

@@ -65,7 +65,7 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
     per_yarn = np.bincount(col.yarn, weights=top - bot, minlength=n_yarns) * dA
     depth = coverage_depth(len(xy), col.point, bot, top)
 
-    pairs = {}
+    pairs = {}  # (a, b) -> (volume, max depth, where)
     # rows are sorted by point: pair every row with the later rows of the same point
     for shift in range(1, max(2, int(np.bincount(col.point).max()) if len(col.point) else 1)):
         a, b = np.arange(len(col.point) - shift), np.arange(shift, len(col.point))
@@ -73,12 +73,21 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
         a, b = a[same], b[same]
         ov = np.minimum(top[a], top[b]) - np.maximum(bot[a], bot[b])
         pos = ov > 0
-        for ya, yb, o in zip(col.yarn[a][pos], col.yarn[b][pos], ov[pos]):
-            key = (int(min(ya, yb)), int(max(ya, yb)))
-            v, d = pairs.get(key, (0.0, 0.0))
-            pairs[key] = (v + o * dA, max(d, o))
+        ya, yb, o, pt = col.yarn[a][pos], col.yarn[b][pos], ov[pos], col.point[a][pos]
+        code = np.minimum(ya, yb).astype(np.int64) * n_yarns + np.maximum(ya, yb)
+        keys, inverse = np.unique(code, return_inverse=True)
+        volume = np.bincount(inverse, weights=o, minlength=len(keys)) * dA
+        order = np.lexsort((o, inverse))  # per key, deepest last
+        last = order[np.r_[np.flatnonzero(np.diff(inverse[order])), len(order) - 1]] if len(order) else order
+        for key, v, k in zip(keys.tolist(), volume, last):
+            pair = (key // n_yarns, key % n_yarns)
+            v0, d0, at0 = pairs.get(pair, (0.0, 0.0, None))
+            pairs[pair] = (v0 + float(v), max(d0, float(o[k])),
+                           at0 if d0 >= o[k] else [float(xy[pt[k], 0]), float(xy[pt[k], 1])])
 
+    deepest = int(np.argmax(depth)) if len(depth) else 0
     local = {"volume": float(depth.sum() * dA), "max_depth": float(depth.max()) if len(depth) else 0.0,
+             "at": xy[deepest].tolist() if len(depth) else None,
              "z_lo": float(bot.min()) if len(bot) else np.inf, "z_hi": float(top.max()) if len(top) else -np.inf,
              "odd": col.odd}
     if comm is not None and comm.size > 1:
@@ -87,12 +96,13 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
         per_yarn = comm.allreduce(per_yarn, op=MPI.SUM)
         merged = {}
         for part in comm.allgather(pairs):
-            for k, (v, d) in part.items():
-                v0, d0 = merged.get(k, (0.0, 0.0))
-                merged[k] = (v0 + v, max(d0, d))
+            for k, (v, d, at) in part.items():
+                v0, d0, at0 = merged.get(k, (0.0, 0.0, None))
+                merged[k] = (v0 + v, max(d0, d), at0 if d0 >= d else at)
         pairs = merged
+        deepest = max(comm.allgather((local["max_depth"], local["at"])), key=lambda p: p[0])
         local = {"volume": comm.allreduce(local["volume"], op=MPI.SUM),
-                 "max_depth": comm.allreduce(local["max_depth"], op=MPI.MAX),
+                 "max_depth": deepest[0], "at": deepest[1],
                  "z_lo": comm.allreduce(local["z_lo"], op=MPI.MIN),
                  "z_hi": comm.allreduce(local["z_hi"], op=MPI.MAX),
                  "odd": comm.allreduce(local["odd"], op=MPI.SUM)}
@@ -102,8 +112,9 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
         "interpenetration": {
             "volume": local["volume"],
             "max_depth": local["max_depth"],
-            "pairs": [{"yarns": list(k), "volume": float(v), "max_depth": float(d)}
-                      for k, (v, d) in sorted(pairs.items())],
+            "at": local["at"],
+            "pairs": [{"yarns": list(k), "volume": float(v), "max_depth": float(d), "at": at}
+                      for k, (v, d, at) in sorted(pairs.items())],
         },
         "thickness": float(thickness),
         "crimp": crimp(textile),

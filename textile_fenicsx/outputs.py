@@ -8,11 +8,14 @@ DIR/fields/yarn_I.bp     mid-surface fields of yarn I (w, z0, t, z = z0 + w, gap
                          ParaView (VTX)
 DIR/surfaces_before.vtu/.stl, DIR/surfaces_after.vtu/.stl   yarn surfaces clipped to the cell
 DIR/view_before.png, DIR/view_after.png, DIR/cross_sections.png   figures
-A failed run (the contact iteration did not converge) writes DIR/FAILED (the reason) and
-DIR/log.json (iteration log, settings) instead, and removes results of an earlier run there.
+A run whose check on the corrected model failed (verify.py) writes all of the above, with the
+corrected model named rejected.tg3/.json, and DIR/FAILED (the reasons). A run whose contact
+iteration did not converge writes DIR/FAILED (the reason) and DIR/log.json (iteration log,
+settings) only, and removes results of an earlier run there.
 """
 
 import json
+import logging
 import platform
 import time
 from dataclasses import asdict
@@ -24,15 +27,14 @@ import dolfinx
 import dolfinx.io
 from textile_fenicsx import __version__
 from textile_fenicsx.config import save_model
-from textile_fenicsx.export import write_surfaces
 from textile_fenicsx.files import staged_folder
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.solver import gap_fields
 from textile_fenicsx.tg3 import write_tg3
 
+log = logging.getLogger(__name__)
 
-RESULT_NAMES = ("corrected.tg3", "corrected.json", "initial.json", "metrics.json", "fields", "surfaces_before.vtu",
-                "surfaces_before.stl", "surfaces_after.vtu", "surfaces_after.stl", "view_before.png",
+
+RESULT_NAMES = ("corrected.tg3", "corrected.json", "rejected.tg3", "rejected.json", "initial.json", "metrics.json",
+                "fields", "surfaces_before.vtu", "surfaces_before.stl", "surfaces_after.vtu", "surfaces_after.stl", "view_before.png",
                 "view_after.png", "cross_sections.png")
 FAILED_NAMES = ("FAILED", "log.json")
 
@@ -76,63 +78,80 @@ def cut_lines(textile) -> list:
     return lines
 
 
-def write_run(result, corrected, out, params, options, mesh_options, figures: bool = True,
-              log=None, extra_times: dict | None = None, fields: bool = True, surfaces: bool = True) -> Path:
-    """Write the run's folder `out` (collective); returns its path. fields, surfaces, figures: False
-    leaves those parts out (the models and metrics.json are always written)."""
-    comm = result.midsurfaces.V.mesh.comm
-    say = log if (log is not None and comm.rank == 0) else (lambda *_: None)
-    t0 = time.perf_counter()
-    before, after = measure(result.textile, 200, comm), measure(corrected, 200, comm)
-    t_metrics = time.perf_counter() - t0
-    summary = result.summary()
-    metrics = {
-        "interpenetration": {k: {"volume": m["interpenetration"]["volume"], "max_depth": m["interpenetration"]["max_depth"],
-                                 "pairs": m["interpenetration"]["pairs"]} for k, m in (("before", before), ("after", after))},
-        "thickness": {"before": before["thickness"], "after": after["thickness"]},
-        "crimp": {"before": before["crimp"], "after": after["crimp"]},
-        "yarn_volume": {"before": before["yarn_volume"], "after": after["yarn_volume"]},
-        "vf": {"before": before["vf"], "after": after["vf"]},
+def metrics_document(run) -> dict:
+    """metrics.json: the run's numbers before and after, the verdict of the check, the settings."""
+    m = run.metrics
+    before, after = m["before"], m["after"] or {}
+    summary = run.summary()
+    pick = (lambda key: {"before": before[key], "after": after.get(key)})
+    return {
+        "verdict": m["verdict"],
+        "interpenetration": {k: (None if v is None else {f: v["interpenetration"][f] for f in
+                                                         ("volume", "max_depth", "at", "pairs")})
+                             for k, v in (("before", before), ("after", m["after"]))},
+        "thickness": pick("thickness"), "crimp": pick("crimp"), "yarn_volume": pick("yarn_volume"),
+        "yarn_volume_change": m.get("yarn_volume_change"), "section_area_change": m.get("section_area_change"),
+        "vf": pick("vf"),
         "dofs": summary["dofs"], "cells": summary["cells"], "iterations": summary["iterations"],
-        "augmented_updates": summary["updates"], "converged": summary["converged"],
+        "converged": summary["converged"], "reason": summary["reason"],
         "penetration_nodal_mm": summary["max_penetration_nodal"], "max_abs_w_mm": summary["max_abs_w"],
-        "time_s": {**(extra_times or {}), **summary["time_s"]},
-        "parameters": asdict(params), "solver": {k: v for k, v in asdict(options).items()},
-        "mesh": asdict(mesh_options), "ranks": comm.size, "versions": versions(),
-        "units": "mm, mm^3",
+        "time_s": dict(run.times),
+        "parameters": asdict(run.settings.plate), "solver": asdict(run.settings.solver),
+        "mesh": asdict(run.settings.mesh), "correction": asdict(run.settings.correction),
+        "ranks": run.comm.size, "versions": versions(), "units": "mm, mm^3",
     }
-    with staged_folder(out, comm, remove=FAILED_NAMES) as tmp:
-        say("outputs: models")
+
+
+def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: bool = True) -> Path:
+    """Write the run's folder `out` (collective); returns its path. fields, surfaces, figures: False
+    leaves those parts out (the models and metrics.json are always written). A run whose check
+    failed keeps everything for inspection, its corrected model named rejected.tg3/.json, and a
+    FAILED file with the reasons."""
+    comm = run.comm
+    t0 = time.perf_counter()
+    metrics = metrics_document(run)
+    passed = metrics["verdict"]["passed"]
+    stem = "corrected" if passed else "rejected"
+    corrected = run.corrected
+    with staged_folder(out, comm, remove=FAILED_NAMES + RESULT_NAMES) as tmp:
+        log.info("outputs: models")
         if comm.rank == 0:
-            write_tg3(corrected, tmp / "corrected.tg3")
-            save_model(corrected, tmp / "corrected.json")
-            save_model(result.textile, tmp / "initial.json")
+            write_tg3(corrected, tmp / f"{stem}.tg3")
+            save_model(corrected, tmp / f"{stem}.json")
+            save_model(run.textile, tmp / "initial.json")
+            if not passed:
+                (tmp / "FAILED").write_text("\n".join(f["message"] for f in metrics["verdict"]["failures"]) + "\n")
         if fields:
-            say("outputs: mid-surface fields")
+            log.info("outputs: mid-surface fields")
             if comm.rank == 0:
                 (tmp / "fields").mkdir()
             comm.barrier()
-            gaps = gap_fields(result.problem) if result.problem is not None else [()] * len(result.solution.w)
-            for y, w, extra in zip(result.midsurfaces.yarns, result.solution.w, gaps):
+            sol = run.solution
+            for y, w, gap, contact in zip(run.midsurfaces.yarns, sol.w, sol.gap, sol.contact):
                 z = dolfinx.fem.Function(y.V, name="z")
                 z.x.array[:] = y.z0.x.array + w.x.array
                 with dolfinx.io.VTXWriter(y.mesh.comm, tmp / "fields" / f"yarn_{y.yarn}.bp",
-                                          [w, y.z0, y.t, z, *extra], engine="BP4") as vtx:
+                                          [w, y.z0, y.t, z, gap, contact], engine="BP4") as vtx:
                     vtx.write(0.0)
-        if comm.rank == 0:
-            if surfaces:
-                say("outputs: surfaces")
-                for name, textile in (("before", result.textile), ("after", corrected)):
-                    write_surfaces(textile, tmp / f"surfaces_{name}.vtu")
-                    write_surfaces(textile, tmp / f"surfaces_{name}.stl")
+        if comm.rank == 0 and (surfaces or figures):
+            from textile_fenicsx.surfaces import YarnSurfaces
+
+            log.info("outputs: surfaces")
+            built = {name: YarnSurfaces.build(t) for name, t in (("before", run.textile), ("after", corrected))}
+            for name, surf in built.items():
+                if surf.open_yarns:
+                    log.warning("outputs: the clipped surfaces of yarns %s (%s) could not be closed; written open",
+                                surf.open_yarns, name)
+                if surfaces:
+                    surf.write(tmp / f"surfaces_{name}.vtu")
+                    surf.write(tmp / f"surfaces_{name}.stl")
             if figures:
                 from textile_fenicsx.plotting import plot_cross_sections, plot_textile
 
-                say("outputs: figures")
-                plot_textile(result.textile, tmp / "view_before.png", f"{result.textile.name}: before")
-                plot_textile(corrected, tmp / "view_after.png", f"{result.textile.name}: after")
-                plot_cross_sections(result.textile, corrected, tmp / "cross_sections.png", cut_lines(result.textile))
-        metrics["time_s"]["metrics"] = t_metrics  # part of outputs
+                log.info("outputs: figures")
+                plot_textile(run.textile, built["before"], tmp / "view_before.png", f"{run.textile.name}: before")
+                plot_textile(corrected, built["after"], tmp / "view_after.png", f"{run.textile.name}: after")
+                plot_cross_sections(run.textile, corrected, tmp / "cross_sections.png", cut_lines(run.textile))
         metrics["time_s"]["outputs"] = time.perf_counter() - t0
         metrics["time_s"]["total"] = metrics["time_s"].get("total", 0.0) + metrics["time_s"]["outputs"]
         if comm.rank == 0:
@@ -140,14 +159,15 @@ def write_run(result, corrected, out, params, options, mesh_options, figures: bo
     return Path(out)
 
 
-def write_failed(out, solution, params, options, mesh_options, comm) -> Path:
+def write_failed(run, out) -> Path:
     """A run whose contact iteration failed: `out` holds FAILED (the reason) and log.json (the
     iteration log and the settings), nothing that could be mistaken for a result (collective)."""
-    log = {"reason": solution.reason, "iterations": solution.iterations, "updates": solution.updates,
-           "history": solution.history, "parameters": asdict(params), "solver": asdict(options),
-           "mesh": asdict(mesh_options), "ranks": comm.size, "versions": versions()}
+    sol, comm = run.solution, run.comm
+    document = {"reason": sol.reason, "iterations": sol.iterations, "history": sol.history,
+                "parameters": asdict(run.settings.plate), "solver": asdict(run.settings.solver),
+                "mesh": asdict(run.settings.mesh), "ranks": comm.size, "versions": versions()}
     with staged_folder(out, comm, remove=RESULT_NAMES) as tmp:
         if comm.rank == 0:
-            (tmp / "FAILED").write_text(solution.reason + "\n")
-            (tmp / "log.json").write_text(json.dumps(log, indent=1))
+            (tmp / "FAILED").write_text(sol.reason + "\n")
+            (tmp / "log.json").write_text(json.dumps(document, indent=1))
     return Path(out)

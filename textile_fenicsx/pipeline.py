@@ -1,68 +1,123 @@
-"""One way through the house: textile -> projected mesh -> mid-surfaces -> solve (DESIGN.md 2)."""
+"""One way through the house (DESIGN.md 2): textile -> projected mesh -> mid-surfaces -> solve ->
+corrected textile. `run` does it and returns a `Run`: the corrected textile, the solution, the times
+of the stages; its metrics (and the verdict of the check on the corrected model) are measured on
+first use, and `write` makes the output folder."""
 
+import logging
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
+from textile_fenicsx.correct import CorrectionOptions, corrected_textile
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
-from textile_fenicsx.solver import ContactProblem, PlateParameters, Solution, SolverOptions
+from textile_fenicsx.solver import ContactProblem, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.textile import Textile
+
+__all__ = ["Run", "Settings", "run"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Everything a run was asked to do."""
+
+    mesh: MeshOptions = MeshOptions()
+    plate: PlateParameters = PlateParameters()
+    solver: SolverOptions = SolverOptions()
+    correction: CorrectionOptions = CorrectionOptions()
 
 
 @dataclass
 class Run:
-    """Everything one run produced, with the time each stage took [s]."""
+    """Everything one run produced, with the time each stage took [s]. `corrected` is None when the
+    contact iteration did not converge (`solution.reason` says why)."""
 
     textile: Textile
+    settings: Settings
     midsurfaces: MidSurfaces
     solution: Solution
+    corrected: Textile | None
     times: dict = field(default_factory=dict)
-    problem: ContactProblem | None = None
+    _metrics: dict | None = field(default=None, repr=False)
+
+    @property
+    def comm(self) -> MPI.Comm:
+        return self.midsurfaces.V.mesh.comm
+
+    @property
+    def converged(self) -> bool:
+        return self.solution.converged
 
     def summary(self) -> dict:
         """JSON-ready numbers of the run (collective)."""
-        comm = self.midsurfaces.V.mesh.comm
         local = max([float(np.max(np.abs(w.x.array))) for w in self.solution.w if len(w.x.array)] or [0.0])
         sol = self.solution
         return {
             "dofs": int(sum(y.V.dofmap.index_map.size_global for y in self.midsurfaces.yarns)),
             "cells": int(self.midsurfaces.projected.stats["cells"]),
             "iterations": sol.iterations, "updates": sol.updates, "converged": sol.converged,
-            "max_penetration_nodal": sol.max_penetration,
-            "max_abs_w": comm.allreduce(local, op=MPI.MAX),
-            "time_s": dict(self.times),
+            "reason": sol.reason, "max_penetration_nodal": sol.max_penetration,
+            "max_abs_w": self.comm.allreduce(local, op=MPI.MAX), "time_s": dict(self.times),
         }
 
+    @property
+    def metrics(self) -> dict:
+        """Metrics before and after and the verdict of the check on the corrected model
+        (`verify.assess`; collective, measured once)."""
+        if self._metrics is None:
+            from textile_fenicsx.verify import assess
 
-def run(textile: Textile, mesh: MeshOptions = MeshOptions(), params: PlateParameters = PlateParameters(),
-        options: SolverOptions = SolverOptions(), comm: MPI.Comm = MPI.COMM_WORLD, log=print) -> Run:
-    """Mesh the textile's projected regions, sample its mid-surfaces and solve for the displacements."""
-    say = log if (log is not None and comm.rank == 0) else (lambda *_: None)
+            t = time.perf_counter()
+            self._metrics = assess(self)
+            self.times["metrics"] = time.perf_counter() - t
+        return self._metrics
+
+    @property
+    def verdict(self) -> dict:
+        return self.metrics["verdict"]
+
+    def write(self, out, figures: bool = True, fields: bool = True, surfaces: bool = True) -> Path:
+        """The run's output folder (outputs.write_run; collective)."""
+        from textile_fenicsx.outputs import write_run
+
+        return write_run(self, out, figures=figures, fields=fields, surfaces=surfaces)
+
+
+def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.COMM_WORLD) -> Run:
+    """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
+    and correct the textile (collective over comm)."""
     times = {}
-    start = time.perf_counter()
-    t = time.perf_counter()
-    projected = projected_mesh(textile, mesh, comm, log=say)
+    start = t = time.perf_counter()
+    projected = projected_mesh(textile, settings.mesh, comm)
     times["mesh"] = time.perf_counter() - t
     t = time.perf_counter()
-    ms = mid_surfaces(projected, log=say)
+    ms = mid_surfaces(projected)
     release_freed_memory()
     times["midsurfaces"] = time.perf_counter() - t
     t = time.perf_counter()
-    problem = ContactProblem(ms, params, options, log=say)
+    problem = ContactProblem(ms, settings.plate, settings.solver)
     release_freed_memory()
     times["assemble"] = time.perf_counter() - t
     t = time.perf_counter()
-    solution = problem.solve()
+    solution = solve_problem(problem)
     times["solve"] = time.perf_counter() - t
+    corrected = None
+    if solution.converged:
+        t = time.perf_counter()
+        corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
+                                      settings.correction.section_points)
+        times["correct"] = time.perf_counter() - t
+    else:
+        log.warning("solve: the contact iteration did not converge: %s", solution.reason)
     times["total"] = time.perf_counter() - start
-    result = Run(textile, ms, solution, times, problem)
+    result = Run(textile, settings, ms, solution, corrected, times)
     s = result.summary()
-    say(f"solve: {s['dofs']} dofs, {s['iterations']} iterations, max penetration "
-        f"{s['max_penetration_nodal']:.3e} mm, max |w| {s['max_abs_w']:.4f} mm, "
-        + ", ".join(f"{k} {v:.2f} s" for k, v in times.items()))
-    if not solution.converged:
-        say("solve: WARNING the contact iteration did not converge (see the iteration log)")
+    log.info("solve: %d dofs, %d Newton steps, max penetration %.3e mm, max |w| %.4f mm, %s", s["dofs"],
+             s["iterations"], s["max_penetration_nodal"], s["max_abs_w"],
+             ", ".join(f"{k} {v:.2f} s" for k, v in times.items()))
     return result

@@ -95,15 +95,12 @@ def plot_height_field(u: dolfinx.fem.Function, path: Path, title: str, warp: flo
         plotter.close()
 
 
-def plot_textile(textile, path: Path, title: str | None = None) -> None:
-    """Write a PNG 3D view of the textile's yarn surfaces clipped to the cell, coloured by yarn."""
+def plot_textile(textile, surfaces, path: Path, title: str | None = None) -> None:
+    """Write a PNG 3D view of the textile's yarn surfaces (surfaces.YarnSurfaces), coloured by yarn."""
     import pyvista
 
-    from textile_fenicsx.export import surfaces
-
-    points, tris, index = surfaces(textile)
-    mesh = pyvista.PolyData(points, np.hstack([np.full((len(tris), 1), 3), tris]).ravel())
-    mesh.cell_data["yarn"] = index
+    mesh = surfaces.polydata()
+    points = surfaces.points
     x0, x1, y0, y1 = textile.cell.bounds
     with offscreen():
         plotter = pyvista.Plotter(off_screen=True, window_size=(1400, 1000))

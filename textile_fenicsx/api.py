@@ -1,0 +1,70 @@
+"""The one-call interface (what `import textile_fenicsx as tfx` offers):
+
+    import textile_fenicsx as tfx
+    textile = tfx.read("satin4.tg3")          # or tfx.build("crowfoot_satin", spacing=2.8, ...)
+    run = tfx.solve(textile, seed=0.5)         # mesh, contact solve, corrected textile
+    run.corrected, run.metrics, run.verdict    # the corrected model, its numbers, its check
+    run.write("out/")                          # the output folder (README: "The output folder")
+
+Every call is collective under MPI (run the script with mpirun); progress goes to the
+`textile_fenicsx` logger (`tfx.show_progress()` prints it from rank 0).
+"""
+
+import logging
+import sys
+from pathlib import Path
+
+__all__ = ["build", "read", "show_progress", "solve"]
+
+
+def read(path) -> "Textile":  # noqa: F821
+    """A textile model from a file: TexGen .tg3, or our .toml / .json (config.py documents them)."""
+    from textile_fenicsx.config import load_model
+
+    return load_model(Path(path))
+
+
+def build(name: str, **sizes) -> "Textile":  # noqa: F821
+    """An idealised unit cell from a builder: plain, twill, satin, crowfoot_satin, basket (2D weaves:
+    spacing, width, height, thickness [mm], ...) or orthogonal (3D; weaves.py lists the options)."""
+    from textile_fenicsx.weaves import build as _build
+
+    return _build(name, **sizes)
+
+
+def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, int] | None = None,
+          free_edges: bool = False, comm=None, **settings) -> "Run":  # noqa: F821
+    """Correct a textile: its projected mesh at element size `seed` [mm], the plates' contact
+    solve (`method` "exact" or the paper's "penalty"), the corrected textile and, on first use of
+    `run.metrics`, its check. `repeat=(nx, ny)`: a coupon of nx x ny cells (with free edges if
+    asked). Other settings by name: `plate=PlateParameters(...)`, `mesh=MeshOptions(...)`,
+    `solver=SolverOptions(...)`, `correction=CorrectionOptions(...)` (replacing seed/method)."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.meshes.projected import MeshOptions
+    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.solver import SolverOptions
+
+    if repeat is not None:
+        from textile_fenicsx.coupon import tile
+
+        textile = tile(textile, *repeat, free_edges=free_edges)
+    settings.setdefault("mesh", MeshOptions(seed))
+    settings.setdefault("solver", SolverOptions(method=method))
+    return run(textile, Settings(**settings), comm or MPI.COMM_WORLD)
+
+
+def show_progress(level: int = logging.INFO, stream=None) -> None:
+    """Print the library's progress lines (mesh, contact steps, outputs) from MPI rank 0."""
+    from mpi4py import MPI
+
+    root = logging.getLogger("textile_fenicsx")
+    root.handlers.clear()
+    root.propagate = False
+    if MPI.COMM_WORLD.rank == 0:
+        handler = logging.StreamHandler(stream or sys.stderr)
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        root.addHandler(handler)
+        root.setLevel(level)
+    else:
+        root.addHandler(logging.NullHandler())

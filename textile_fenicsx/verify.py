@@ -1,0 +1,138 @@
+"""The check after every run, on the corrected model itself (not on the FE solution).
+
+The corrected textile is measured as any model is (metrics.measure: vertical rays through its
+yarn surfaces) and compared with the initial one. A run passes when
+- its yarns overlap by at most `overlap` of the initial overlap volume (or of the thinnest yarn's
+  height x the cell area x 1e-3 when the initial model had almost none), and nowhere deeper than
+  `depth` x the thinnest yarn's height;
+- every yarn keeps its volume within `volume` (a fraction; in a periodic cell: across a free edge
+  yarn length moves in or out of the box), and every section's area within `section_area` of the
+  initial section's at the same station;
+- no section polygon crosses itself.
+`assess` returns the metrics before and after with a `verdict`: passed, the failures (each with its
+numbers and the worst place), and the tolerances used.
+"""
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from textile_fenicsx.metrics import measure
+from textile_fenicsx.sections import Polygon
+from textile_fenicsx.textile import Textile
+
+__all__ = ["Tolerances", "assess", "self_intersecting"]
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """What the corrected model may still have [fractions, -]: overlap volume (of the initial
+    overlap), overlap depth (of the thinnest yarn's height), change of a yarn's volume, change of
+    a section's area."""
+
+    overlap: float = 0.01
+    depth: float = 0.01
+    volume: float = 0.01
+    section_area: float = 0.01
+    grid: int = 200
+
+
+def self_intersecting(polygons: np.ndarray) -> np.ndarray:
+    """For polygons (S, n, 2), whether each crosses itself (two non-adjacent edges intersect)."""
+    p = np.asarray(polygons, float)
+    a, b = p, np.roll(p, -1, axis=1)  # edge k: a[k] -> b[k]
+    n = p.shape[1]
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))  # the first and last edges share a vertex
+    i, j = i[keep], j[keep]
+    out = np.zeros(len(p), bool)
+    for start in range(0, len(p), 256):
+        A, B = a[start:start + 256], b[start:start + 256]
+
+        def orient(P, Q, R):
+            return np.sign((Q[..., 0] - P[..., 0]) * (R[..., 1] - P[..., 1])
+                           - (Q[..., 1] - P[..., 1]) * (R[..., 0] - P[..., 0]))
+
+        d1 = orient(A[:, i], B[:, i], A[:, j])
+        d2 = orient(A[:, i], B[:, i], B[:, j])
+        d3 = orient(A[:, j], B[:, j], A[:, i])
+        d4 = orient(A[:, j], B[:, j], B[:, i])
+        out[start:start + 256] = np.any((d1 * d2 < 0) & (d3 * d4 < 0), axis=1)
+    return out
+
+
+def _sections(textile: Textile, i: int) -> np.ndarray | None:
+    """The corrected yarn's per-station polygons (S, n, 2), or None when it has no polygon sections."""
+    sections = textile.yarns[i].section.sections()
+    if not all(isinstance(s, Polygon) for s in sections) or len({len(s.vertices) for s in sections}) != 1:
+        return None
+    return np.array([s.vertices for s in sections])
+
+
+def _areas(polys: np.ndarray) -> np.ndarray:
+    x, y = polys[..., 0], polys[..., 1]
+    return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+
+
+def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
+    """Metrics of the run's initial and corrected models and the verdict (collective)."""
+    tol = tolerances
+    comm = run.comm
+    initial, corrected = run.textile, run.corrected
+    before = measure(initial, tol.grid, comm)
+    out = {"before": before, "after": None, "verdict": {"passed": False, "failures": [], "tolerances": asdict(tol)}}
+    verdict = out["verdict"]
+    if corrected is None:
+        verdict["failures"].append({"check": "solve", "message": run.solution.reason})
+        return out
+    after = measure(corrected, tol.grid, comm)
+    out["after"] = after
+    names = [y.name for y in initial.yarns]
+    h_min = min(s.height for y in initial.yarns for s in y.section.sections())
+    pen0, pen = before["interpenetration"], after["interpenetration"]
+    allowed = tol.overlap * max(pen0["volume"], 1e-3 * h_min * initial.cell.area)
+    worst = max(pen["pairs"], key=lambda p: p["max_depth"], default=None)
+    where = (f"; deepest between {names[worst['yarns'][0]]} and {names[worst['yarns'][1]]} at "
+             f"({worst['at'][0]:.3f}, {worst['at'][1]:.3f}) mm" if worst else "")
+    if pen["volume"] > allowed:
+        verdict["failures"].append({"check": "overlap volume", "value": pen["volume"], "limit": allowed,
+                                    "message": f"the corrected yarns overlap by {pen['volume']:.4g} mm^3 (before "
+                                               f"{pen0['volume']:.4g} mm^3; limit {allowed:.3g}){where}"})
+    if pen["max_depth"] > tol.depth * h_min:
+        verdict["failures"].append({"check": "overlap depth", "value": pen["max_depth"], "limit": tol.depth * h_min,
+                                    "at": worst["at"] if worst else None,
+                                    "message": f"the corrected yarns overlap {pen['max_depth']:.4g} mm deep (limit "
+                                               f"{tol.depth * h_min:.3g} mm, {tol.depth:.0%} of the thinnest yarn){where}"})
+    v0, v1 = np.array(before["yarn_volume"]["per_yarn"]), np.array(after["yarn_volume"]["per_yarn"])
+    change = np.where(v0 > 0, v1 / np.where(v0 > 0, v0, 1) - 1, 0.0)
+    out["yarn_volume_change"] = change.tolist()
+    k = int(np.argmax(np.abs(change))) if len(change) else 0
+    # with free edges yarns run in and out of the box, and their volume inside it changes as
+    # their ends lift or drop: there the sections' areas say whether material was kept
+    if len(change) and abs(change[k]) > tol.volume and initial.cell.periodic:
+        verdict["failures"].append({"check": "yarn volume", "value": float(change[k]), "limit": tol.volume,
+                                    "yarn": k, "message": f"{names[k]} (yarn {k}) changed volume by "
+                                                          f"{change[k]:+.2%} (limit {tol.volume:.0%})"})
+    spacing = run.settings.correction.station_spacing(run.settings.mesh.seed)
+    area_change = []
+    for i, (y0, y1) in enumerate(zip(initial.yarns, corrected.yarns)):
+        polys = _sections(corrected, i)
+        if polys is None:
+            area_change.append(0.0)
+            continue
+        crossed = np.flatnonzero(self_intersecting(polys))
+        if len(crossed):
+            verdict["failures"].append({"check": "section", "yarn": i, "station": int(crossed[0]),
+                                        "message": f"{names[i]} (yarn {i}): {len(crossed)} section polygons cross "
+                                                   f"themselves (first at station {int(crossed[0])})"})
+        a0 = _areas(y0.section_points(y0.stations(spacing), polys.shape[1]))
+        ratio = _areas(polys) / a0 - 1 if len(a0) == len(polys) else np.zeros(1)
+        area_change.append(float(ratio[np.argmax(np.abs(ratio))]))
+        if abs(area_change[-1]) > tol.section_area:
+            verdict["failures"].append({"check": "section area", "yarn": i, "value": area_change[-1],
+                                        "limit": tol.section_area,
+                                        "message": f"{names[i]} (yarn {i}): a section's area changed by "
+                                                   f"{area_change[-1]:+.2%} (limit {tol.section_area:.0%})"})
+    out["section_area_change"] = area_change
+    verdict["passed"] = not verdict["failures"]
+    return out
