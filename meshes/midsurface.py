@@ -186,9 +186,11 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
         ms.contact_dofs[(u, l)] = np.column_stack((du, dl)).astype(np.int64).reshape(-1, 2)
 
 
-# Points inside each cell where the P2 gap field is compared with the model's own rays: the centroid
-# and the centroids of the three corner sub-triangles (reference coordinates).
-MARGIN_POINTS = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]])
+# Points in each cell where the P2 gap field is compared with the model's own rays (reference
+# coordinates): the centroid, the centroids of the three corner sub-triangles, and the quarter
+# points of the edges (the P2 nodes themselves are exact).
+MARGIN_POINTS = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3],
+                          [1 / 4, 0], [3 / 4, 0], [0, 1 / 4], [0, 3 / 4], [3 / 4, 1 / 4], [1 / 4, 3 / 4]])
 
 
 def _gap_margins(ms: MidSurfaces) -> None:
@@ -196,8 +198,8 @@ def _gap_margins(ms: MidSurfaces) -> None:
 
     z0 and t are exact at the dofs, but between them the yarns' surfaces are not quadratic (near a
     yarn's flank its thickness falls like a square root), so a P2 gap that is >= 0 at every node
-    can hide an overlap between them. In every cell of a pair the model's rays are cast at four
-    interior points and compared with the P2 gap there; a node's margin is the largest shortfall
+    can hide an overlap between them. In every cell of a pair the model's rays are cast at ten
+    points (MARGIN_POINTS) and compared with the P2 gap there; a node's margin is the largest shortfall
     over the cells around it, of any pair, on any rank (a reverse scatter with MAX), and the solver
     keeps the node's gap >= its margin."""
     import basix
@@ -288,8 +290,11 @@ def _periodic_structure(ms: MidSurfaces) -> None:
                             "has no periodic image inside the cell")
     pairs = np.column_stack((Gi, Gs[k])) if len(Gi) else np.zeros((0, 2), np.int64)
     for y in ms.yarns:
-        own = np.unique(imap.local_to_global(y.to_parent.astype(np.int32)))  # owned or ghost
-        mine = np.isin(pairs[:, 0], np.concatenate(comm.allgather(own)))
+        own = np.concatenate(comm.allgather(np.unique(imap.local_to_global(y.to_parent.astype(np.int32)))))
+        # a node on the right or top side is the image of its partner only where the partner is a
+        # node of the same yarn: where a yarn's edge lies on a side (a binder whose edge runs along
+        # it) the partner belongs to other yarns, and the node is a free edge of this plate
+        mine = np.isin(pairs[:, 0], own) & np.isin(pairs[:, 1], own)
         ms.periodic.append(pairs[mine])
 
 

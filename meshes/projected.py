@@ -152,10 +152,10 @@ def check_slopes(textile: Textile, options: MeshOptions) -> list[str]:
     return warnings
 
 
-def footprint_outlines(textile: Textile, i: int, spacing: float) -> list[tuple[np.ndarray, np.ndarray]]:
+def footprint_outlines(textile: Textile, i: int, spacing: float, pad: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
     """Outlines of yarn i seen along z: one (right, left) pair of side chains ((n, 2) each, in the
-    yarn's direction) per lateral copy, long enough to cover the cell along the yarn (several periods
-    chained). The closed outline is right + reversed left."""
+    yarn's direction) per lateral copy that reaches the cell grown by `pad`, long enough to cover
+    the cell along the yarn (several periods chained). The closed outline is right + reversed left."""
     yarn = textile.yarns[i]
     s = yarn.stations(spacing)
     pos, _, up, side = yarn.frames(s)
@@ -168,12 +168,14 @@ def footprint_outlines(textile: Textile, i: int, spacing: float) -> list[tuple[n
     lateral = np.einsum("mkj,j->mk", pts - pos[:, None, :2], normal)
     m = np.arange(len(s))
     left, right = pts[m, np.argmax(lateral, axis=1)], pts[m, np.argmin(lateral, axis=1)]
-    if not yarn.periodic:
-        return [(right, left)]
-    P = yarn.period[:2]
     lo, hi = pts.reshape(-1, 2).min(axis=0), pts.reshape(-1, 2).max(axis=0)
+    x0, x1, y0, y1 = textile.cell.bounds
+    region = (x0 - pad, x1 + pad, y0 - pad, y1 + pad)
+    if not yarn.periodic:  # a piece (free edges, or a crown of a cut yarn): its copies by the repeats
+        return [(right + t[:2], left + t[:2]) for t in textile._translations(yarn, np.r_[lo, 0], np.r_[hi, 0], region)]
+    P = yarn.period[:2]
     outlines = {}
-    for t in textile._translations(yarn, np.r_[lo, 0], np.r_[hi, 0]):
+    for t in textile._translations(yarn, np.r_[lo, 0], np.r_[hi, 0], region):
         k = int(np.round(t[:2] @ P / (P @ P)))
         b = t[:2] - k * P
         outlines.setdefault(tuple(np.round(b, 9)), (b, []))[1].append(k)
@@ -184,6 +186,31 @@ def footprint_outlines(textile: Textile, i: int, spacing: float) -> list[tuple[n
         L = np.concatenate([left[(1 if n else 0):] + k * P + b for n, k in enumerate(ks)])
         result.append((R, L))
     return result
+
+
+def snap_to_sides(points: np.ndarray, middle: np.ndarray, cell, tol: float) -> np.ndarray:
+    """Footprint edge points within tol of a cell side line (or of one of its periodic copies)
+    moved outward, away from the yarn's middle line (`middle`, one point per edge point), to 2 tol
+    beyond the side: gmsh's boolean tolerance (tol) would merge an edge that close onto the side on
+    one side of the cell and not on the other (a binder's edge 0.0125 mm inside the top side: its
+    periodic copy lies outside the bottom side), and the footprint would stop being periodic. Moved
+    outward, the yarn covers a strip of 2 tol across the side, on both sides alike (its periodic
+    copy does the same), and never loses plate where it really is. Coordinates are compared modulo
+    the cell, so every periodic copy of a point moves alike."""
+    if not cell.periodic or tol <= 0:
+        return points
+    out = points.copy()
+    for axis, lo, length in ((0, cell.bounds[0], cell.lx), (1, cell.bounds[2], cell.ly)):
+        line = lo + np.round((out[:, axis] - lo) / length) * length
+        near = np.abs(out[:, axis] - line) < tol
+        # only where the edge runs along the side (its direction within 10 degrees of the side's):
+        # an edge that crosses the side keeps its points (moving them would fold the outline)
+        tangent = np.gradient(points, axis=0) if len(points) > 1 else np.zeros_like(points)
+        parallel = np.abs(tangent[:, axis]) < 0.17 * np.linalg.norm(tangent, axis=1)
+        along = near & parallel
+        outward = np.where(points[:, axis] >= middle[:, axis], 1.0, -1.0)
+        out[along, axis] = line[along] + 2 * tol * outward[along]
+    return out
 
 
 def _clip_to_box(poly: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
@@ -231,6 +258,8 @@ def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str)
     pieces = []  # (yarn, surface tag) of each footprint piece inside the cell
     for i, sides in outlines:
         for right, left in sides:
+            middle = (right + left) / 2
+            right, left = snap_to_sides(right, middle, cell, sliver), snap_to_sides(left, middle, cell, sliver)
             # Each side is one smooth spline through its chain: gmsh then places nodes by the seed.
             pr = [occ.addPoint(px, py, 0) for px, py in right]
             pl = [occ.addPoint(px, py, 0) for px, py in left[::-1]]
@@ -531,7 +560,8 @@ def _mesh(textile, cell, options, comm, warnings) -> ProjectedMesh:
                 # a coupon: its unit cell is meshed, then repeated
                 tiling = getattr(textile, "tiling", None)
                 source = tiling.unit if tiling is not None else textile
-                outlines = [(i, footprint_outlines(source, i, options.seed / 4))
+                sliver = options.seed / 20 if options.sliver is None else options.sliver
+                outlines = [(i, footprint_outlines(source, i, options.seed / 4, pad=3 * sliver))
                             for i in range(len(source.yarns))] if source is not None else []
                 arrays, coverage, stats = _gmsh_model(source.cell if source is not None else cell, outlines,
                                                       options, f"projected-{name}")

@@ -66,11 +66,8 @@ def test_correction_of_a_manufactured_lift_and_twist(satin_run):
     assert np.allclose(new_up, up, atol=1e-2)  # a cubic through 0.25 mm stations vs the Bezier path
     assert np.allclose(got[..., 0], old[..., 0], atol=1e-9)
     y_minus_yc = old[..., 0] * side[:, None, 1]  # u runs along side = tangent x up (here -y)
-    squeeze = np.minimum(1.0, new_up[:, 2] / up[:, 2])[:, None]  # keeps the vertical thickness
-    assert np.all(squeeze > 0.99)
-    # the turn is a shear (area kept) and the squeeze is undone to keep the section's area:
-    # v = (v0 squeeze + b (y - y_c) up_z) / squeeze
-    assert np.allclose(got[..., 1], old[..., 1] + b * y_minus_yc * new_up[:, None, 2] / squeeze, atol=1e-9)
+    # the turn is a shear: the section keeps its shape normal to the path and its area
+    assert np.allclose(got[..., 1], old[..., 1] + b * y_minus_yc * new_up[:, None, 2], atol=1e-9)
 
 
 @pytest.mark.mpi

@@ -291,3 +291,32 @@ def test_contact_forms_are_the_derivatives_of_the_energy(crossing_mesh):
     g.x.array[:] -= 2 * h * dg.x.array
     down = e()
     assert (up - down) / (2 * h) == pytest.approx(slope, rel=1e-7)
+
+
+@pytest.mark.mpi
+def test_direct_solver_applies_its_options_and_removes_them():
+    # the options dict is written under the solver's own prefix, read by the KSP and by MUMPS at
+    # the first factorisation, then removed from PETSc's global database
+    from petsc4py import PETSc
+
+    from textile_fenicsx.solver.linear import DIRECT_LDLT, DirectSolver
+
+    n = 10
+    A = PETSc.Mat().createAIJ(((PETSc.DECIDE, n), (PETSc.DECIDE, n)), nnz=1, comm=MPI.COMM_WORLD)
+    lo, hi = A.getOwnershipRange()
+    for i in range(lo, hi):
+        A.setValue(i, i, float(i + 1))
+    A.assemble()
+    solver = DirectSolver(MPI.COMM_WORLD, DIRECT_LDLT, prefix="tfx_test_options")
+    solver.factor(A)
+    F = solver.ksp.getPC().getFactorMatrix()
+    assert F.getMumpsIcntl(7) == 2 and F.getMumpsIcntl(13) == 1 and F.getMumpsIcntl(24) == 1
+    left = [k for k in PETSc.Options().getAll() if k.startswith("tfx_test_options")]
+    assert left == []
+    b, x = A.createVecLeft(), A.createVecRight()
+    b.set(1.0)
+    solver.solve(b, x)
+    lo, hi = x.getOwnershipRange()
+    assert np.allclose(x.getArray(), 1.0 / (np.arange(lo, hi) + 1))
+    solver.destroy()
+    A.destroy()

@@ -100,7 +100,7 @@ def section_to_dict(s: Section) -> dict:
 
 YARN_KEYS = {"name", "nodes", "interpolation", "periodic", "repeats", "tangents", "ups", "angles",
              "force_in_plane_tangent", "force_node_tangent_in_plane", "fibres", "section",
-             "node_sections", "position_sections", "ramped", "polar"}
+             "node_sections", "mid_sections", "position_sections", "ramped", "polar"}
 
 
 def yarn_from_dict(d, where: str) -> Yarn:
@@ -114,8 +114,18 @@ def yarn_from_dict(d, where: str) -> Yarn:
     elif "node_sections" in d:
         if not isinstance(d["node_sections"], list):
             raise FormatError(f"{where}.node_sections: expected a list of section tables")
+        mids = d.get("mid_sections", [])
+        if not isinstance(mids, list) or not all(isinstance(m, dict) and set(m) == {"segment", "t", "section"}
+                                                 for m in mids):
+            raise FormatError(f"{where}.mid_sections: expected a list of tables with segment, t and section")
+        try:
+            mid = tuple((int(m["segment"]), float(m["t"]),
+                         section_from_dict(m["section"], f"{where}.mid_sections[{k}].section"))
+                        for k, m in enumerate(mids))
+        except (TypeError, ValueError, OverflowError):
+            raise FormatError(f"{where}.mid_sections: segment must be a whole number and t a number") from None
         section = NodeSections(tuple(section_from_dict(s, f"{where}.node_sections[{k}]")
-                                     for k, s in enumerate(d["node_sections"])), ramped, polar)
+                                     for k, s in enumerate(d["node_sections"])), ramped, polar, mid)
     else:
         ps = d["position_sections"]
         _keys(ps, f"{where}.position_sections", {"positions", "sections"}, {"positions", "sections"})
@@ -169,6 +179,8 @@ def yarn_to_dict(y: Yarn) -> dict:
         d["section"] = section_to_dict(s.section)
     elif isinstance(s, NodeSections):
         d["node_sections"] = [section_to_dict(x) for x in s.at_nodes]
+        if s.mid:
+            d["mid_sections"] = [{"segment": k, "t": t, "section": section_to_dict(x)} for k, t, x in s.mid]
     else:
         d["position_sections"] = {"positions": list(s.positions),
                                   "sections": [section_to_dict(x) for x in s.at_positions]}

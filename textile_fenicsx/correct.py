@@ -53,9 +53,74 @@ def _wrap(xy: np.ndarray, cell: Cell) -> np.ndarray:
     return np.column_stack((x0 + np.mod(xy[:, 0] - x0, cell.lx), y0 + np.mod(xy[:, 1] - y0, cell.ly)))
 
 
+class _Whole:
+    """The displacement of a yarn that is one plate: w (a Function on its mid-surface)."""
+
+    def __init__(self, w, cell: Cell):
+        self.w, self.cell = w, cell
+
+    def centre(self, s: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        return evaluate(self.w, _wrap(xy, self.cell))
+
+    def points(self, s: np.ndarray, xy: np.ndarray, w_centre: np.ndarray) -> np.ndarray:
+        # points just outside the meshed footprint (its edge is a spline through the outline) take
+        # w from the nearest element
+        return evaluate(self.w, _wrap(xy.reshape(-1, 2), self.cell), extrapolate=True).reshape(xy.shape[:2])
+
+
+class _Crowns:
+    """The displacement of a yarn cut into crowns (legs.py): each station on a crown takes that
+    crown's plate; a leg's stations take the displacements of its two crown ends, interpolated
+    along the leg in the path parameter (the leg's sections move as a whole)."""
+
+    def __init__(self, yarn: Yarn, pieces: list, cell: Cell):
+        self.yarn, self.pieces, self.cell = yarn, pieces, cell  # pieces: [(crown, w, plate yarn)]
+
+    def _owner(self, s: np.ndarray) -> np.ndarray:
+        n = self.yarn.n_segments
+        owner = np.full(len(s), -1)
+        for k, (crown, _, _) in enumerate(self.pieces):
+            for shift in (0.0, n, -n):
+                owner[(s + shift >= crown.s0 - 1e-12) & (s + shift <= crown.s1 + 1e-12)] = k
+        return owner
+
+    def centre(self, s: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        owner, out = self._owner(s), np.full(len(s), np.nan)
+        ends = []  # (parameter, w) at every crown's start and end
+        for k, (crown, w, plate) in enumerate(self.pieces):
+            on = owner == k
+            out[on] = evaluate(w, _wrap(xy[on], self.cell), extrapolate=True) if np.any(on) else []
+            tips = evaluate(w, _wrap(plate.nodes[[0, -1], :2], self.cell), extrapolate=True)
+            ends += [(crown.s0, tips[0]), (crown.s1, tips[1])]
+        legs = owner < 0
+        if np.any(legs):
+            n = self.yarn.n_segments
+            ps = np.array([e[0] for e in ends])
+            ws = np.array([e[1] for e in ends])
+            order = np.argsort(ps)
+            ps, ws = ps[order], ws[order]
+            if self.yarn.periodic:  # the legs between the last end and the first start wrap
+                ps, ws = np.r_[ps[-1] - n, ps, ps[0] + n], np.r_[ws[-1], ws, ws[0]]
+            t = s[legs] - np.floor((s[legs] - ps[0]) / n) * n if self.yarn.periodic else s[legs]
+            out[legs] = np.interp(t, ps, ws)
+        return out
+
+    def points(self, s: np.ndarray, xy: np.ndarray, w_centre: np.ndarray) -> np.ndarray:
+        owner, out = self._owner(s), np.repeat(w_centre[:, None], xy.shape[1], axis=1)
+        for k, (_, w, _) in enumerate(self.pieces):
+            on = owner == k
+            if np.any(on):
+                out[on] = evaluate(w, _wrap(xy[on].reshape(-1, 2), self.cell), extrapolate=True).reshape(-1, xy.shape[1])
+            else:
+                evaluate(w, np.zeros((0, 2)), extrapolate=True)  # collective
+        return out
+
+
 def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32) -> Yarn:
-    """Yarn i moved by its displacement field w (a Function on its mid-surface)."""
+    """Yarn i moved by its displacement: w, a Function on its mid-surface (or, for a yarn cut
+    into crowns, a _Crowns of their Functions)."""
     yarn = textile.yarns[i]
+    w = w if isinstance(w, _Crowns) else _Whole(w, textile.cell)
     s = yarn.stations(spacing)
     pos, _, up, side = yarn.frames(s)
     sec = yarn.section_points(s, n_points)
@@ -64,8 +129,7 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     _, _, up0, side0 = (replace(yarn, angles=None) if yarn.angles is not None else yarn).frames(s)
     u0 = np.einsum("mkj,mj->mk", rel, side0)
     v0 = np.einsum("mkj,mj->mk", rel, up0)
-    cell = textile.cell
-    w_centre = evaluate(w, _wrap(pos[:, :2], cell))
+    w_centre = w.centre(s, pos[:, :2])
     if np.any(np.isnan(w_centre)):
         k = int(np.flatnonzero(np.isnan(w_centre))[0])
         raise GeometryError(f"{yarn.name}: its centreline at ({pos[k, 0]:.3f}, {pos[k, 1]:.3f}) mm lies outside "
@@ -77,9 +141,7 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     fade = up0[:, 2] ** 2
     pts_xy = (pos[:, None, :2] + u0[..., None] * side0[:, None, :2]
               + (v0 * fade[:, None])[..., None] * up0[:, None, :2])
-    # points just outside the meshed footprint (its edge is a spline through the outline) take w
-    # from the nearest element
-    w_pts = evaluate(w, _wrap(pts_xy.reshape(-1, 2), cell), extrapolate=True).reshape(len(s), n_points)
+    w_pts = w.points(s, pts_xy, w_centre)
     new_pos = pos + np.outer(w_centre, [0.0, 0.0, 1.0])
     if yarn.periodic:  # the last station repeats the first, shifted by the period
         new_pos[-1] = new_pos[0] + yarn.period
@@ -90,8 +152,7 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     probe = Yarn(new_pos, ConstantSection(yarn.section.sections()[0]), "cubic", yarn.periodic, yarn.repeats,
                  ups=ups, name=yarn.name, fibres=yarn.fibres)
     _, _, new_up, _ = probe.frames(np.arange(len(s), dtype=float))
-    squeeze = np.minimum(1.0, new_up[:, 2] / np.maximum(up0[:, 2], 1e-12))
-    v_new = v0 * squeeze[:, None] + (w_pts - w_centre[:, None]) * new_up[:, None, 2]
+    v_new = v0 + (w_pts - w_centre[:, None]) * new_up[:, None, 2]
     # the section keeps its area (its fibres): the plates keep the vertical thickness, which
     # changes the area normal to the path where the slope changes (by cos(new) / cos(old)), and
     # the vertical shift varies over a tilted section. Where the area would grow the section
@@ -110,9 +171,21 @@ def _areas(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(u * np.roll(v, -1, axis=1) - np.roll(u, -1, axis=1) * v, axis=1)
 
 
-def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int = 32) -> Textile:
-    """The textile with every yarn moved by its displacement (w[i] for yarn i); collective."""
-    yarns = [corrected_yarn(textile, i, wi, spacing, n_points) for i, wi in enumerate(w)]
+def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int = 32, split=None) -> Textile:
+    """The textile with every yarn moved by its displacement (w[k] for plate yarn k: yarn k itself,
+    or with `split` (legs.Split) the crown k of the plate model); collective."""
+    if split is None or not split.any:
+        displacements = list(w)
+    else:
+        displacements = [None] * len(textile.yarns)
+        for k, crown in enumerate(split.crowns):
+            if crown.whole:
+                displacements[crown.yarn] = w[k]
+            else:
+                if displacements[crown.yarn] is None:
+                    displacements[crown.yarn] = _Crowns(textile.yarns[crown.yarn], [], textile.cell)
+                displacements[crown.yarn].pieces.append((crown, w[k], split.plate.yarns[k]))
+    yarns = [corrected_yarn(textile, i, wi, spacing, n_points) for i, wi in enumerate(displacements)]
     c = textile.cell
     z = np.concatenate([y.nodes[:, 2] for y in yarns])
     heights = [max(s.height for s in y.section.sections()) for y in yarns]

@@ -56,7 +56,8 @@ def _continued(yarn, k: int, name: str):
     section = yarn.section
     if isinstance(section, NodeSections):
         at = tuple(section.at_nodes[:body]) * k + (section.at_nodes[-1],)
-        section = replace(section, at_nodes=at)
+        mid = tuple((seg + j * body, t, x) for j in range(k) for seg, t, x in section.mid)
+        section = replace(section, at_nodes=at, mid=mid)
     elif isinstance(section, PositionSections):  # fractions of the length: k copies, squeezed
         pos = tuple((j + f) / k for j in range(k) for f in section.positions)
         section = replace(section, positions=pos, at_positions=tuple(section.at_positions) * k)

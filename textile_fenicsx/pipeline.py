@@ -12,6 +12,8 @@ import numpy as np
 from mpi4py import MPI
 
 from textile_fenicsx.correct import CorrectionOptions, corrected_textile
+from textile_fenicsx.legs import STEEP, leg_loads, split_steep
+from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
 from textile_fenicsx.solver import ContactProblem, PlateParameters, Solution, SolverOptions, solve_problem
@@ -93,24 +95,36 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     and correct the textile (collective over comm)."""
     times = {}
     start = t = time.perf_counter()
-    projected = projected_mesh(textile, settings.mesh, comm)
+    split = split_steep(textile, settings.mesh.seed / 2)  # binder legs are not plates (legs.py)
+    if split.any:
+        log.info("legs: %s cut into crowns where steeper than %g", ", ".join(
+            sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})), STEEP)
+    projected = projected_mesh(split.plate, settings.mesh, comm)
     times["mesh"] = time.perf_counter() - t
     t = time.perf_counter()
     ms = mid_surfaces(projected)
     release_freed_memory()
     times["midsurfaces"] = time.perf_counter() - t
     t = time.perf_counter()
-    problem = ContactProblem(ms, settings.plate, settings.solver)
+    loads = leg_loads(split, ms, settings.plate.sigma1, settings.mesh.seed)
+    problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads)
     release_freed_memory()
     times["assemble"] = time.perf_counter() - t
     t = time.perf_counter()
     solution = solve_problem(problem)
+    if solution.converged:  # once more with the thickness the new slopes give (slopes.py)
+        change = slope_thickness(ms, solution.w)
+        log.info("slopes: thickness changed by up to %.2f %%; solving again with it", 100 * change)
+        first = solution
+        solution = solve_problem(ContactProblem(ms, settings.plate, settings.solver, loads=loads), start=first)
+        solution.iterations += first.iterations
+        solution.history = first.history + solution.history
     times["solve"] = time.perf_counter() - t
     corrected = None
     if solution.converged:
         t = time.perf_counter()
         corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
-                                      settings.correction.section_points)
+                                      settings.correction.section_points, split)
         times["correct"] = time.perf_counter() - t
     else:
         log.warning("solve: the contact iteration did not converge: %s", solution.reason)

@@ -156,6 +156,13 @@ class Polygon(Section):
         v = np.asarray(self.vertices)
         return float(np.ptp(v[:, 1]))
 
+    def points(self, n: int) -> np.ndarray:
+        """The vertices themselves when n is their count (a corrected yarn's sections are sampled
+        back exactly: resampling by perimeter cuts corners, -1 % of area on power ellipses), else n
+        points uniform in perimeter."""
+        v = np.asarray(self.vertices)
+        return v.copy() if n == len(v) else self.curve(np.arange(n) / n)
+
     def curve(self, t):
         """Points at fraction t of the perimeter from the first vertex."""
         v = np.asarray(self.vertices)

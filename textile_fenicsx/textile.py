@@ -267,10 +267,10 @@ class Textile:
         lateral shift (surfaces.YarnSurfaces clips them to the cell)."""
         yarn = self.yarns[i]
         verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
-        if not yarn.periodic:
-            return [_closed_tube(verts)]
-        P = yarn.period
         lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
+        if not yarn.periodic:  # a piece: its copies by the repeats (none with free edges)
+            return [_closed_tube(verts + t) for t in self._translations(yarn, lo, hi)]
+        P = yarn.period
         bases = {}
         for t in self._translations(yarn, lo, hi):
             k = int(np.round(t @ P / (P @ P)))

@@ -93,16 +93,25 @@ def _yarn_section(el, n_nodes: int, where: str):
             raise FormatError(f"{where}: no <Section>")
         return ConstantSection(_section(sec, where))
     if kind == "CYarnSectionInterpNode":
-        found = {}
+        found, mid = {}, []
         for ns in el.findall("NodeSection"):
             k = _attr(ns, "nodeindex", where, kind=int)
             sec = ns.find("Section")
             if sec is None:
                 raise FormatError(f"{where}: NodeSection {k} has no <Section>")
             found[k] = _section(sec, f"{where} node {k}")
+            for ms in ns.findall("MidNodeSection"):  # TexGen's refine: sections inside segment k
+                t = _attr(ms, "t", where)
+                inner = ms.find("Section")
+                if inner is None or not 0 < t < 1 or k >= n_nodes - 1:
+                    raise FormatError(f"{where}: MidNodeSection of node {k} needs a <Section>, 0 < t < 1 and a "
+                                      "following node")
+                mid.append((k, float(t), _section(inner, f"{where} node {k} mid")))
         if sorted(found) != list(range(n_nodes)):
             raise FormatError(f"{where}: needs one NodeSection per master node 0..{n_nodes - 1}, has {sorted(found)}")
-        return NodeSections(tuple(found[k] for k in range(n_nodes)), ramped, polar)
+        if len({k for k, _, _ in mid}) != len(mid):
+            raise FormatError(f"{where}: more than one MidNodeSection in a segment is not supported")
+        return NodeSections(tuple(found[k] for k in range(n_nodes)), ramped, polar, tuple(mid))
     if kind == "CYarnSectionInterpPosition":
         items = []
         for ps in el.findall("PositionSection"):
@@ -306,8 +315,13 @@ def tg3_tree(textile: Textile) -> ET.ElementTree:
         elif isinstance(sec, NodeSections):
             ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpNode",
                                Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))
+            mids = {k: (t, x) for k, t, x in sec.mid}
             for k, s in enumerate(sec.at_nodes):
-                _section_element(ET.SubElement(ys, "NodeSection", nodeindex=str(k)), s, n_sec)
+                node = ET.SubElement(ys, "NodeSection", nodeindex=str(k))
+                _section_element(node, s, n_sec)
+                if k in mids:
+                    t, x = mids[k]
+                    _section_element(ET.SubElement(node, "MidNodeSection", nodeindex=str(k), t=_num(t)), x, n_sec)
         else:
             ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpPosition",
                                Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))

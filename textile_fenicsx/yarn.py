@@ -33,14 +33,17 @@ class ConstantSection:
 
 @dataclass(frozen=True)
 class NodeSections:
-    """One section per master node, blended point by point between nodes (TexGen InterpNode)."""
+    """One section per master node, blended point by point between nodes (TexGen InterpNode).
+    mid: sections inside segments, ((segment k, t in (0, 1), section), ...), as TexGen's refine
+    writes them (MidNodeSection): within segment k the blend runs node k -> mid at t -> node k + 1."""
 
     at_nodes: tuple
     ramped: bool = False
     polar: bool = False
+    mid: tuple = ()
 
     def sections(self):
-        return tuple(self.at_nodes)
+        return tuple(self.at_nodes) + tuple(m[2] for m in self.mid)
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,12 @@ class Yarn:
             raise TextileError(f"{label}: section must be ConstantSection, NodeSections or PositionSections")
         if isinstance(self.section, NodeSections) and len(self.section.at_nodes) != len(self.nodes):
             raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} master nodes")
+        if isinstance(self.section, NodeSections):
+            segments = [m[0] for m in self.section.mid]
+            if any(not (0 <= k < len(self.nodes) - 1 and 0 < t < 1) for k, t, _ in self.section.mid) \
+                    or len(set(segments)) != len(segments):
+                raise TextileError(f"{label}: a mid-segment section needs a segment 0..{len(self.nodes) - 2} (one each) "
+                                   "and 0 < t < 1")
         self.repeats = np.array(self.repeats, dtype=float).reshape(-1, 3)
         if not np.all(np.isfinite(self.repeats)):
             raise TextileError(f"{label}: a repeat vector is not finite")
@@ -238,7 +247,17 @@ class Yarn:
         pts = np.array([x.points(n_points) for x in sec.sections()])
         if isinstance(sec, NodeSections):
             i, t = self._segment(s)
-            return blend(pts[i], pts[i + 1], t, sec.ramped, sec.polar)
+            out = blend(pts[i], pts[i + 1], t, sec.ramped, sec.polar)
+            for m, (k, tm, _) in enumerate(sec.mid):  # node k -> mid -> node k + 1 within segment k
+                mid = pts[len(sec.at_nodes) + m]
+                first = (i == k) & (t <= tm)
+                second = (i == k) & (t > tm)
+                if np.any(first):
+                    out[first] = blend(pts[k][None], mid[None], t[first] / tm, sec.ramped, sec.polar)
+                if np.any(second):
+                    out[second] = blend(mid[None], pts[k + 1][None], (t[second] - tm) / (1 - tm), sec.ramped,
+                                        sec.polar)
+            return out
         # Positions are fractions of the yarn's length measured along straight segments (TexGen).
         i, t = self._segment(s)
         seg = np.linalg.norm(np.diff(self.nodes, axis=0), axis=1)

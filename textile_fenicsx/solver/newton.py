@@ -41,11 +41,10 @@ GRADIENT_RTOL = 1e-10
 START_RATIO = 1e-3
 FRACTION_TO_BOUNDARY = 0.995
 MAX_WEIGHT = 1e8
+# a warm start (from a related problem's solution) keeps its slacks at least this far from 0 [mm]
+WARM_GAP = 1e-5
 # steps in a row that move nothing while nodes still penetrate: the constraints cannot all hold
 STALLED_STEPS, STALLED_STEP = 5, 1e-6
-# the barrier parameter relative to its start below which the steps lose accuracy (round-off in
-# lam / s of the closed nodes): the iteration ends there
-MU_FLOOR = 1e-13
 
 
 @dataclass
@@ -60,6 +59,7 @@ class Outcome:
     converged: bool
     reason: str
     history: list = field(default_factory=list)
+    forces: object = None  # exact method: the nodal contact forces [N]
 
 
 def _global_max(comm, values: np.ndarray) -> float:
@@ -77,7 +77,7 @@ class _InteriorPoint:
     with slacks s = g (s > 0) and nodal forces lam > 0, s lam -> 0 along the central path. Each
     step factorises K_fixed + C^T diag(lam / s) C once and solves with it twice."""
 
-    def __init__(self, problem: ContactProblem):
+    def __init__(self, problem: ContactProblem, x0=None):
         self.problem, self.nodes, self.comm = problem, problem.nodes, problem.comm
         nodes = self.nodes
         self.rows = np.concatenate([nodes.rows_u, nodes.rows_l])
@@ -86,12 +86,19 @@ class _InteriorPoint:
         dg = problem.gather(diag)
         diag.destroy()
         self.k = np.abs(dg[nodes.at_u]) + np.abs(dg[nodes.at_l])  # the plates' stiffness at each node [N/mm]
-        # start: x = 0, slacks a little above the initial gaps, forces of a soft spring over that distance
-        tau = max(self.max(-nodes.g0), problem.options.penetration_tol * 1e3)
-        self.s = np.maximum(nodes.g0, 0.0) + tau
-        self.lam = START_RATIO * self.k * tau
+        # start: x = 0 (or x0), slacks a little above the gaps there, forces of a soft spring over
+        # that distance
         self.x, self.dx = problem.b_fixed.duplicate(), problem.b_fixed.duplicate()
         self.x.set(0.0)
+        if x0 is None:
+            tau = max(self.max(-nodes.g0), problem.options.penetration_tol * 1e3)
+            self.s = np.maximum(nodes.g0, 0.0) + tau
+            self.lam = START_RATIO * self.k * tau
+        else:  # warm: the earlier unknowns and forces, the slacks at the new gaps, kept interior
+            x_start, lam_start = x0
+            self.x.getArray()[:] = x_start
+            self.s = np.maximum(self.gaps(self.x), WARM_GAP)
+            self.lam = np.maximum(lam_start, START_RATIO * self.k * WARM_GAP)
 
     def max(self, v: np.ndarray) -> float:
         return _global_max(self.comm, v)
@@ -143,25 +150,26 @@ class _InteriorPoint:
                     moved_mm=alpha * self.dx.norm(PETSc.NormType.NORM_INFINITY))
 
 
-def solve_exact(problem: ContactProblem) -> Outcome:
+def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
     """The exact method (module docstring): interior-point steps until one that is not held back
     by the boundary moves no point by more than displacement_tol, and no node penetrates."""
     opts = problem.options
-    ip = _InteriorPoint(problem)
+    ip = _InteriorPoint(problem, x0)
     history, stalled, good = [], 0, np.inf
     for it in range(1, opts.max_iterations + 1):
         t0 = time.perf_counter()
         line = ip.step(it)
-        mu_start = history[0]["mu"] if history else line["mu"]
         g = ip.gaps(ip.x)
         line.update(max_penetration=ip.max(-g), time_s=time.perf_counter() - t0)
         history.append(line)
         log.info("contact step %3d: max penetration %.3e mm, moved %.2e mm, step %.3g, mu %.2e, %.2f s", it,
                  line["max_penetration"], line["moved_mm"], line["step"], line["mu"], line["time_s"])
-        good = line["moved_mm"] if line["step"] >= 0.5 else good  # the last step the boundary did not cut
-        # done: a full step moved nothing by more than the tolerance; or the barrier is at the
-        # floor of double precision (further steps only lose accuracy) after one that nearly did
-        floor = line["mu"] <= MU_FLOOR * mu_start and good <= 10 * opts.displacement_tol
+        # done: a full step (not cut short by the boundary) moved nothing by more than the
+        # tolerance; or, once one moved less than ten times that, the next is cut short: the
+        # iterates are at the precision of double arithmetic (the closed nodes' lam / s), and
+        # further steps only lose it
+        floor = line["step"] < 0.1 and good <= 10 * opts.displacement_tol
+        good = line["moved_mm"] if line["step"] >= 0.5 else good
         if line["max_penetration"] <= opts.penetration_tol and (good <= opts.displacement_tol or floor):
             return _ended(problem, ip, it, history, True,
                           f"converged: the last full step moved {good:.1e} mm, no node penetrates by more "
@@ -205,7 +213,9 @@ def _ended(problem: ContactProblem, ip: _InteriorPoint, it, history, converged, 
     for k, a in enumerate(active):
         a[nodes.at[(nodes.pair == k) & closed]] = True
     ip.dx.destroy()
-    return Outcome(ip.x, g, active, it, 0, converged, reason, history)
+    out = Outcome(ip.x, g, active, it, 0, converged, reason, history)
+    out.forces = ip.lam
+    return out
 
 
 def solve_penalty(problem: ContactProblem) -> Outcome:

@@ -89,3 +89,4 @@ class Solution:
     converged: bool
     reason: str
     times: dict = field(default_factory=dict)
+    unknowns: object = None  # this rank's part of the unknowns vector (to start a related solve from)

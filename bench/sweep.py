@@ -1,0 +1,109 @@
+"""The robustness sweep: the default command on a family of fabrics users bring.
+
+Every fabric of reference/fabrics/ (built with TexGen's own classes: 2D weaves loose to jammed,
+every section type, rectangular cells, unbalanced yarns, refine on and off; orthogonal,
+layer-to-layer and angle-interlock 3D weaves) and a few of our own builders' fabrics, each solved
+by `textile-fenicsx solve FILE --seed SEED --no-figures --out DIR` in a fresh process, as a user
+runs it. A case passes when the command exits 0: the contact solve converged and the corrected
+model passed its check (verify.py: overlap <= 1 % of before, depth <= 1 % of the thinnest yarn,
+volumes and section areas within 1 %, no crossed section). tests/test_sweep.py runs it (marked
+slow); `make sweep` prints the table:
+
+    python3 bench/sweep.py [--seed 0.5] [--only NAME ...] [--out output/sweep.json]
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+FABRICS = REPO / "reference" / "fabrics"
+# our builders, by name: (builder arguments for `textile-fenicsx build`)
+BUILT = {
+    "ours_plain_jammed": ["plain", "--spacing", "2", "--width", "1.96", "--height", "0.4"],
+    "ours_twill_loose": ["twill", "--spacing", "2", "--width", "1.2", "--height", "0.24"],
+    "ours_satin5": ["satin", "--harness", "5", "--move", "2", "--spacing", "2", "--width", "1.8", "--height", "0.36"],
+    "ours_orthogonal": ["orthogonal"],
+}
+
+
+def cases() -> list[str]:
+    """Every case name: the fabric files' stems, then our builders'."""
+    return sorted(p.stem for p in FABRICS.glob("*.tg3")) + sorted(BUILT)
+
+
+def run_case(name: str, seed: float = 0.5, timeout: float = 900) -> dict:
+    """Solve one case with the default command in a fresh process; its record."""
+    with tempfile.TemporaryDirectory(prefix=f"sweep-{name[:30]}-") as tmp:
+        tmp = Path(tmp)
+        if name in BUILT:
+            built = subprocess.run([sys.executable, "-m", "textile_fenicsx", "build", *BUILT[name], "--no-picture",
+                                    "--out", str(tmp / "model")], capture_output=True, text=True, timeout=timeout)
+            if built.returncode != 0:
+                return {"case": name, "exit": built.returncode, "error": built.stderr.strip().splitlines()[-1:]}
+            model = next((tmp / "model").glob("*.tg3"))
+        else:
+            model = FABRICS / f"{name}.tg3"
+        out = tmp / "run"
+        start = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-m", "textile_fenicsx", "solve", str(model), "--seed", str(seed),
+                               "--no-figures", "--out", str(out)], capture_output=True, text=True, timeout=timeout)
+        record = {"case": name, "seed": seed, "exit": proc.returncode, "seconds": time.perf_counter() - start}
+        metrics = out / "metrics.json"
+        if metrics.is_file():
+            m = json.loads(metrics.read_text())
+            before, after = m["interpenetration"]["before"], m["interpenetration"]["after"]
+            record.update(dofs=m["dofs"], iterations=m["iterations"], passed=m["verdict"]["passed"],
+                          overlap_before=before["volume"], overlap_after=after["volume"],
+                          depth_before=before["max_depth"], depth_after=after["max_depth"],
+                          thickness_before=m["thickness"]["before"], thickness_after=m["thickness"]["after"],
+                          volume_change=max(map(abs, m["yarn_volume_change"])),
+                          failures=[f["message"] for f in m["verdict"]["failures"]])
+        if proc.returncode != 0:
+            record["error"] = proc.stderr.strip().splitlines()[-1:] if proc.stderr.strip() else []
+        return record
+
+
+def table(records: list[dict]) -> str:
+    """A markdown table of the records, with the pass rate."""
+    lines = ["| case | exit | dofs | steps | overlap mm^3 before -> after | depth mm before -> after | "
+             "thickness mm | max volume change | s |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        if "overlap_before" in r:
+            lines.append(f"| {r['case']} | {r['exit']} | {r['dofs']} | {r['iterations']} | "
+                         f"{r['overlap_before']:.4f} -> {r['overlap_after']:.2e} | {r['depth_before']:.4f} -> "
+                         f"{r['depth_after']:.4f} | {r['thickness_before']:.3f} -> {r['thickness_after']:.3f} | "
+                         f"{100 * r['volume_change']:.2f} % | {r['seconds']:.0f} |")
+        else:
+            lines.append(f"| {r['case']} | {r['exit']} | | | {' '.join(r.get('error', []))[:120]} | | | | "
+                         f"{r.get('seconds', 0):.0f} |")
+    passed = sum(r["exit"] == 0 for r in records)
+    lines.append(f"\npassed {passed} of {len(records)} ({100 * passed / max(len(records), 1):.0f} %)")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seed", type=float, default=0.5)
+    parser.add_argument("--only", nargs="+", metavar="NAME")
+    parser.add_argument("--out", type=Path, default=REPO / "output" / "sweep.json")
+    args = parser.parse_args()
+    records = []
+    for name in args.only or cases():
+        print(f"sweep: {name}", file=sys.stderr, flush=True)
+        records.append(run_case(name, args.seed))
+        r = records[-1]
+        print(f"sweep: {name}: exit {r['exit']}" + (f", {r['failures']}" if r.get("failures") else "")
+              + (f", {r['error']}" if r.get("error") and not r.get("failures") else ""), file=sys.stderr, flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"machine": os.uname().nodename, "records": records}, indent=1))
+    print(table(records))
+
+
+if __name__ == "__main__":
+    main()
