@@ -5,11 +5,11 @@ yarn surfaces) and compared with the initial one. A run passes when
 - its yarns overlap by at most `overlap` of the initial overlap volume (or of the thinnest yarn's
   height x the cell area x 1e-3 when the initial model had almost none), and nowhere deeper than
   `depth` x the thinnest yarn's height;
-- every yarn keeps its volume within `volume` (a fraction), and every section's area within
-  `section_area` of the initial section's at the same station; the volume is not held where the
-  yarn's length may change: across a free edge (yarn runs in and out of the box) and for a yarn
-  with legs (legs.py: a binder's legs shorten or lengthen with the stack they wrap), whose volume
-  change is its length change and is reported;
+- every yarn keeps its volume per length (its volume over 1 + crimp) within `volume` (a
+  fraction), and every section's area within `section_area` of the initial section's at the same
+  station (the tension shortens crimped yarns: a binder loses length, and with it volume in the
+  cell, at constant area); the volume is not held across a free edge (yarns run in and out of the
+  box) nor for a yarn with legs (legs.py), whose sections' areas are;
 - no section polygon crosses itself.
 `assess` returns the metrics before and after with a `verdict`: passed, the failures (each with its
 numbers and the worst place), and the tolerances used.
@@ -114,17 +114,21 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
     v0, v1 = np.array(before["yarn_volume"]["per_yarn"]), np.array(after["yarn_volume"]["per_yarn"])
     change = np.where(v0 > 0, v1 / np.where(v0 > 0, v0, 1) - 1, 0.0)
     out["yarn_volume_change"] = change.tolist()
-    k = int(np.argmax(np.abs(change))) if len(change) else 0
-    # with free edges yarns run in and out of the box, and their volume inside it changes as
-    # their ends lift or drop; a yarn cut into crowns (legs.py) changes its length with the stack
-    # its legs wrap: for these the sections' areas say whether material was kept
+    # a yarn keeps its sections' areas, so its volume changes with its length (centreline length
+    # over its in-plane length: 1 + crimp): what is held is the volume per length. Not held across
+    # a free edge (yarn runs in and out of the box) and for a yarn with legs (legs.py: their
+    # corners are rebuilt, and the sections' areas are held instead)
+    length = (1 + np.array(after["crimp"])) / (1 + np.array(before["crimp"]))
+    per_length = np.where(v0 > 0, (1 + change) / length - 1, 0.0)
+    out["yarn_volume_per_length_change"] = per_length.tolist()
     held = np.array([initial.cell.periodic and not _has_legs(y) for y in initial.yarns])
-    change_held = np.where(held, change, 0.0)
+    change_held = np.where(held, per_length, 0.0)
     k = int(np.argmax(np.abs(change_held))) if len(change) else 0
     if len(change) and abs(change_held[k]) > tol.volume:
-        verdict["failures"].append({"check": "yarn volume", "value": float(change[k]), "limit": tol.volume,
-                                    "yarn": k, "message": f"{names[k]} (yarn {k}) changed volume by "
-                                                          f"{change[k]:+.2%} (limit {tol.volume:.0%})"})
+        verdict["failures"].append({"check": "yarn volume", "value": float(change_held[k]), "limit": tol.volume,
+                                    "yarn": k, "message": f"{names[k]} (yarn {k}) changed its volume per length by "
+                                                          f"{change_held[k]:+.2%} (limit {tol.volume:.0%}; volume "
+                                                          f"{change[k]:+.2%}, length {length[k] - 1:+.2%})"})
     spacing = run.settings.correction.station_spacing(run.settings.mesh.seed)
     area_change = []
     for i, (y0, y1) in enumerate(zip(initial.yarns, corrected.yarns)):
