@@ -319,7 +319,10 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     """Crossings of vertical lines through pts (N, 2) with triangles (T, 3, 3).
 
     Returns (point index, z) of every crossing. Triangles and points are matched through a uniform
-    grid of bins so the work grows with the number of crossings, not points x triangles.
+    grid of bins so the work grows with the number of crossings, not points x triangles. The bins
+    are `bin_size` (the surface's station spacing) or smaller where the triangles are much smaller
+    (yarns with dense master nodes), and the candidate pairs are tested in chunks, so the memory
+    stays bounded whatever the triangles' sizes.
     """
     if len(tris) == 0 or len(pts) == 0:
         return np.zeros(0, int), np.zeros(0)
@@ -328,32 +331,66 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     keep = np.abs(area2) > 1e-14 * bin_size**2
     tris, area2 = tris[keep], area2[keep]
     lo_p, hi_p = pts.min(axis=0), pts.max(axis=0)
-    nb = np.maximum(np.ceil((hi_p - lo_p) / bin_size).astype(int), 1)
-    pbin = np.minimum(((pts - lo_p) / bin_size).astype(int), nb - 1)
+    t_min, t_max = tris[:, :, :2].min(axis=1), tris[:, :, :2].max(axis=1)
+    bin_size = _bin_size(t_max - t_min, len(pts), hi_p - lo_p, bin_size)
+    nb = np.maximum(np.ceil((hi_p - lo_p) / bin_size).astype(np.int64), 1)
+    pbin = np.minimum(((pts - lo_p) / bin_size).astype(np.int64), nb - 1)
     pid = pbin[:, 0] * nb[1] + pbin[:, 1]
     order = np.argsort(pid, kind="stable")
     spid = pid[order]
-    tlo = np.floor((tris[:, :, :2].min(axis=1) - lo_p) / bin_size).astype(int)
-    thi = np.floor((tris[:, :, :2].max(axis=1) - lo_p) / bin_size).astype(int)
+    tlo = np.floor((t_min - lo_p) / bin_size).astype(np.int64)
+    thi = np.floor((t_max - lo_p) / bin_size).astype(np.int64)
     tlo, thi = np.maximum(tlo, 0), np.minimum(thi, nb - 1)
     ok = np.all(tlo <= thi, axis=1)
     tri_ids = np.flatnonzero(ok)
-    span = thi[ok] - tlo[ok] + 1
+    tlo, span = tlo[ok], thi[ok] - tlo[ok] + 1
     counts = span[:, 0] * span[:, 1]
     rep = np.repeat(np.arange(len(tri_ids)), counts)
     local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    bx = tlo[ok][rep, 0] + local // span[rep, 1]
-    by = tlo[ok][rep, 1] + local % span[rep, 1]
-    bid = bx * nb[1] + by
+    bid = (tlo[rep, 0] + local // span[rep, 1]) * nb[1] + tlo[rep, 1] + local % span[rep, 1]
+    del local
     start = np.searchsorted(spid, bid, "left")
     n = np.searchsorted(spid, bid, "right") - start
-    t_of = tri_ids[np.repeat(rep, n)]
-    p_of = order[np.repeat(start, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
-    T, p = tris[t_of], pts[p_of]
-    A, B, C = T[:, 0], T[:, 1], T[:, 2]
-    l1 = ((p[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (p[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])) / area2[t_of]
-    l2 = ((B[:, 0] - A[:, 0]) * (p[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (p[:, 0] - A[:, 0])) / area2[t_of]
-    l0 = 1 - l1 - l2
-    inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
-    z = l0 * A[:, 2] + l1 * B[:, 2] + l2 * C[:, 2]
-    return p_of[inside], z[inside]
+    del bid
+    hit_p, hit_z = [], []
+    ends = np.cumsum(n)
+    first = 0
+    while first < len(n):  # (triangle, bin) entries whose candidate pairs add up to at most _CHUNK
+        last = max(int(np.searchsorted(ends, (ends[first - 1] if first else 0) + _CHUNK, "right")), first + 1)
+        nn = n[first:last]
+        t_of = tri_ids[np.repeat(rep[first:last], nn)]
+        p_of = order[np.repeat(start[first:last], nn) + np.arange(nn.sum()) - np.repeat(np.cumsum(nn) - nn, nn)]
+        T, p = tris[t_of], pts[p_of]
+        A, B, C = T[:, 0], T[:, 1], T[:, 2]
+        l1 = ((p[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (p[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])) / area2[t_of]
+        l2 = ((B[:, 0] - A[:, 0]) * (p[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (p[:, 0] - A[:, 0])) / area2[t_of]
+        l0 = 1 - l1 - l2
+        inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
+        hit_p.append(p_of[inside])
+        hit_z.append(l0[inside] * A[inside, 2] + l1[inside] * B[inside, 2] + l2[inside] * C[inside, 2])
+        first = last
+    if not hit_p:
+        return np.zeros(0, int), np.zeros(0)
+    return np.concatenate(hit_p), np.concatenate(hit_z)
+
+
+# Candidate (triangle, point) pairs tested at once by _vertical_hits (about 100 bytes each).
+_CHUNK = 2_000_000
+
+
+def _bin_size(extent: np.ndarray, n_points: int, box: np.ndarray, largest: float) -> float:
+    """The bin size, at most `largest`, that makes the fewest (triangle, bin) entries plus
+    candidate pairs for triangles of these plan extents (T, 2) and points spread over `box`."""
+    area = max(float(box[0]) * float(box[1]), (largest / 4) ** 2, 1e-300)
+    density = n_points / area
+    best, best_cost = largest, np.inf
+    size = largest
+    for _ in range(12):
+        entries = float(np.sum((extent[:, 0] / size + 1) * (extent[:, 1] / size + 1)))
+        cost = entries * (1 + density * size * size)
+        if cost < best_cost:
+            best, best_cost = size, cost
+        size /= 2
+        if np.max(box) / size > 1e7:  # keeps the bin indices small
+            break
+    return best
