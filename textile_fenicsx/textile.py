@@ -14,7 +14,8 @@ from itertools import product
 import numpy as np
 from scipy.spatial import cKDTree
 
-from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx import limits
+from textile_fenicsx.errors import TextileError
 from textile_fenicsx.yarn import Yarn
 
 # Vertical rays are nudged off the query points by this much [mm] (a fixed irrational direction), so
@@ -37,8 +38,8 @@ class Cell:
     periodic: bool = True
 
     def __post_init__(self):
-        object.__setattr__(self, "lx", check_positive("cell size lx", self.lx))
-        object.__setattr__(self, "ly", check_positive("cell size ly", self.ly))
+        object.__setattr__(self, "lx", limits.check_length("cell size lx", self.lx, limits.MAX_CELL))
+        object.__setattr__(self, "ly", limits.check_length("cell size ly", self.ly, limits.MAX_CELL))
         for name in ("x0", "y0"):
             value = getattr(self, name)
             try:
@@ -47,11 +48,13 @@ class Cell:
                 raise TextileError(f"cell origin {name} must be a number, got {value!r}") from None
             if not np.isfinite(value):
                 raise TextileError(f"cell origin {name} must be finite, got {getattr(self, name)!r}")
+            limits.check_coordinates(f"cell origin {name}", value)
             object.__setattr__(self, name, value)
         if self.z_range is not None:
             lo, hi = map(float, self.z_range)
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
                 raise TextileError(f"cell z_range must be finite with zmax > zmin, got {self.z_range!r}")
+            limits.check_coordinates("cell z_range", (lo, hi))
             object.__setattr__(self, "z_range", (lo, hi))
         if not isinstance(self.periodic, (bool, np.bool_)):
             raise TextileError(f"cell periodic must be true or false, got {self.periodic!r}")
@@ -86,9 +89,9 @@ class Resolution:
     section_points: int = 64
 
     def __post_init__(self):
-        check_positive("resolution spacing", self.spacing)
-        if int(self.section_points) < 8:
-            raise TextileError(f"resolution section_points must be >= 8, got {self.section_points!r}")
+        limits.check_length("resolution spacing", self.spacing)
+        limits.check_count("resolution section_points", self.section_points, limits.MIN_SECTION_POINTS,
+                           limits.MAX_SECTION_POINTS)
 
 
 @dataclass
@@ -131,6 +134,7 @@ class Textile:
     def __post_init__(self):
         if not self.yarns:
             raise TextileError(f"textile {self.name!r} has no yarns")
+        limits.check_many(f"textile {self.name!r}: yarns", len(self.yarns), limits.MAX_YARNS)
         for i, y in enumerate(self.yarns):
             if not isinstance(y, Yarn):
                 raise TextileError(f"textile {self.name!r}: yarn {i} is not a Yarn")
@@ -138,7 +142,26 @@ class Textile:
                 y.name = f"yarn {i}"
             if y.periodic and self.cell.periodic:
                 self._check_closes(y)
+        limits.check_many(f"textile {self.name!r}: master nodes of all yarns", sum(len(y.nodes) for y in self.yarns),
+                          limits.MAX_NODES)
+        self.check_surface_size()
         self._triangles = {}
+
+    def check_surface_size(self) -> None:
+        """Refuse a resolution whose yarn surfaces would not fit in memory (counted from the master
+        nodes, before any surface is built): stations at least every resolution spacing along
+        each yarn and 4 per segment, each with section_points points."""
+        r = self.resolution
+        if not isinstance(r, Resolution):
+            raise TextileError(f"textile {self.name!r}: resolution must be a Resolution, got {type(r).__name__}")
+        stations = sum(float(np.sum(np.maximum(np.ceil(np.linalg.norm(np.diff(y.nodes, axis=0), axis=1) / r.spacing), 4)))
+                       for y in self.yarns)
+        points = stations * r.section_points
+        if points > limits.MAX_SURFACE_POINTS:
+            raise TextileError(f"textile {self.name!r}: its yarn surfaces would have about {points:.3g} points "
+                               f"(stations every {r.spacing:g} mm along {len(self.yarns)} yarns, {r.section_points} "
+                               f"points per section), more than the limit of {limits.MAX_SURFACE_POINTS:.3g}; use a "
+                               "larger resolution spacing or fewer section_points")
 
     def _check_closes(self, yarn: Yarn) -> None:
         """A periodic yarn must come back onto itself after whole cells: its last master node is
