@@ -130,6 +130,8 @@ def output_lock(out, comm=None):
     error = None
     if rank == 0:
         try:
+            with naming(out.parent):
+                out.parent.mkdir(parents=True, exist_ok=True)
             _acquire(out)
         except (OSError, OutputError) as e:
             error = e
