@@ -354,8 +354,11 @@ def build_parser() -> argparse.ArgumentParser:
         "printing one line per iteration (active contact dofs, changes, max penetration, residual, time). "
         "Prints a JSON summary (dofs, iterations, max penetration, max |w|, seconds per stage). With --out DIR "
         "writes DIR/corrected.tg3, DIR/corrected.json, DIR/initial.json, DIR/metrics.json (before/after), "
-        "DIR/fields/yarn_I.bp (w, z0, t, z for ParaView), DIR/surfaces_{before,after}.{vtu,stl} and figures "
-        "DIR/view_{before,after}.png, DIR/cross_sections.png; the folder appears only when complete. "
+        "DIR/fields/yarn_I.vtu (w, z0, t, z, gap_below, contact at the mid-surface's vertices), "
+        "DIR/surfaces_{before,after}.{vtu,stl} and figures DIR/view_{before,after}.png, DIR/cross_sections.png; "
+        "the folder appears only when complete, and earlier results in it are replaced. DIR is checked before the "
+        "solve (not an existing file, writable, not the input's folder without --force) and one run at a time "
+        "writes it (a second run into DIR fails at once). "
         "If the contact iteration does not converge, DIR holds only FAILED (the reason) and log.json "
         "(the iteration log) and the exit code is 1. Exit codes: 0 done, 1 the run failed, 2 bad input, "
         "130 interrupted (no output written).")

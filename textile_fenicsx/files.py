@@ -15,16 +15,31 @@ from pathlib import Path
 from textile_fenicsx.errors import OutputError, TextileError
 
 
+def _full(path: Path) -> bool:
+    """Is the file system of `path` (or of its nearest existing parent) full?"""
+    for folder in (path, *path.parents):
+        try:
+            st = os.statvfs(folder)
+        except OSError:
+            continue
+        return st.f_bavail * st.f_frsize < 64 * 1024
+    return False
+
+
 @contextlib.contextmanager
 def naming(path):
     """Errors raised in the block name `path`: an OSError without a file name (a full disk's ENOSPC
-    is raised by a write or a close, not by the open that knows the name) gets it."""
+    is raised by a write or a close, not by the open that knows the name) gets it; one without an
+    error number (numpy's short writes) is ENOSPC when the disk is full."""
     try:
         yield
     except OSError as e:
-        if e.filename is None:
-            raise OSError(e.errno or errno.EIO, e.strerror or str(e), str(path)) from e
-        raise
+        if e.filename is not None:
+            raise
+        number, reason = e.errno, e.strerror or str(e)
+        if not number and _full(Path(path)):
+            number, reason = errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} ({e})"
+        raise OSError(number or errno.EIO, reason, str(path)) from e
 
 
 @contextlib.contextmanager

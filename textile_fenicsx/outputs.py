@@ -27,7 +27,7 @@ import numpy as np
 import dolfinx
 from textile_fenicsx import __version__
 from textile_fenicsx.config import save_model
-from textile_fenicsx.files import naming, staged_folder
+from textile_fenicsx.files import naming, output_lock, staged_folder
 from textile_fenicsx.tg3 import write_tg3
 
 log = logging.getLogger(__name__)
@@ -107,6 +107,12 @@ def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: boo
     leaves those parts out (the models and metrics.json are always written). A run whose check
     failed keeps everything for inspection, its corrected model named rejected.tg3/.json, and a
     FAILED file with the reasons."""
+    comm = run.comm
+    with output_lock(out, comm):  # first: a folder that cannot be written fails before the metrics
+        return _write_run(run, out, figures, fields, surfaces)
+
+
+def _write_run(run, out, figures: bool, fields: bool, surfaces: bool) -> Path:
     comm = run.comm
     t0 = time.perf_counter()
     metrics = metrics_document(run)
