@@ -435,8 +435,9 @@ def test_deeply_nested_model_files_are_refused(suffix, text, tmp_path):
     (lambda: Cell(4, 4, x0=1e9), "cell origin x0: a coordinate of 1e+09 mm is beyond the limit"),
     (lambda: Yarn([[0, 0, 0], [1e9, 0, 0]], ConstantSection(Ellipse(1, 0.2)), name="far"),
      "far: master node positions: a coordinate of 1e+09 mm"),
-    (lambda: Yarn(np.zeros((3000, 3)), ConstantSection(Ellipse(1, 0.2)), name="many"),
-     "many: master nodes: 3000 is more than the limit of 2000"),
+    (lambda: Textile(Cell(4, 4), [Yarn(np.column_stack((np.linspace(0, 4, 3000), np.full(3000, 2.0), np.zeros(3000))),
+                                       ConstantSection(Ellipse(1, 0.2)), repeats=[[4, 0, 0], [0, 4, 0]], name="many")]
+                     ).check_size(), "many: master nodes: 3000 is more than the limit of 2000"),
     (lambda: Textile(Cell(4, 4), [strip(name=f"s{k}") for k in range(1001)]), "yarns: 1001 is more than the limit"),
     (lambda: build("plain", width=1e300, allow_overlap=True), "warp width[0] must be at most 100 mm"),
     (lambda: tile(build("plain"), 101, 1), "coupon repeats nx must be a whole number from 1 to 100"),

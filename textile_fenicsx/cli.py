@@ -88,6 +88,7 @@ def _build(args) -> int:
         textile = build(args.name, **options)
     except TypeError as e:
         raise TextileError(f"build {args.name}: {e}") from None
+    textile.check_size()
     textile = _repeated(textile, args)
     if MPI.COMM_WORLD.rank != 0:
         return 0
@@ -162,7 +163,7 @@ def load_input(text: str):
 
     if _named_weave(text):
         return build(text)
-    return load_model(text)
+    return load_model(text)  # checked against the size bounds by the readers
 
 
 def _solve(args) -> int:

@@ -208,7 +208,7 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
         textile.name = str(d.get("name", kind))
         textile.resolution = resolution
         try:
-            textile.check_surface_size()
+            textile.check_size()
         except TextileError as e:
             raise FormatError(f"{where}.resolution: {e}") from None
         return textile
@@ -225,10 +225,12 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     check_many(f"{where}.yarns", len(d["yarns"]), MAX_YARNS, FormatError)
     yarns = [yarn_from_dict(y, f"{where}.yarns[{k}]") for k, y in enumerate(d["yarns"])]
     try:
-        return Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+        textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+        textile.check_size()
+        return textile
     except FormatError:
         raise
-    except TextileError as e:  # the yarns do not make a periodic textile in this cell
+    except TextileError as e:  # the yarns do not make a periodic textile in this cell, or too large
         raise FormatError(f"{where}: {e}") from None
 
 

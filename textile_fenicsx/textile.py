@@ -142,15 +142,18 @@ class Textile:
                 y.name = f"yarn {i}"
             if y.periodic and self.cell.periodic:
                 self._check_closes(y)
-        limits.check_many(f"textile {self.name!r}: master nodes of all yarns", sum(len(y.nodes) for y in self.yarns),
-                          limits.MAX_NODES)
-        self.check_surface_size()
         self._triangles = {}
 
-    def check_surface_size(self) -> None:
-        """Refuse a resolution whose yarn surfaces would not fit in memory (counted from the master
-        nodes, before any surface is built): stations at least every resolution spacing along
-        each yarn and 4 per segment, each with section_points points."""
+    def check_size(self) -> None:
+        """Refuse a model read from a file or asked for on the command line whose master nodes or
+        yarn surfaces are beyond the bounds (limits.py), before any surface is built: the nodes
+        per yarn and in all, and the surface points (stations at least every resolution spacing
+        along each yarn and 4 per segment, section_points each). Models the pipeline makes (a
+        coupon, a corrected model) are not checked: their size follows from checked inputs."""
+        for y in self.yarns:
+            limits.check_many(f"{y.name}: master nodes", len(y.nodes), limits.MAX_NODES_PER_YARN)
+        limits.check_many(f"textile {self.name!r}: master nodes of all yarns", sum(len(y.nodes) for y in self.yarns),
+                          limits.MAX_NODES)
         r = self.resolution
         if not isinstance(r, Resolution):
             raise TextileError(f"textile {self.name!r}: resolution must be a Resolution, got {type(r).__name__}")

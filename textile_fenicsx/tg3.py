@@ -249,10 +249,12 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
     cell = _domain(el, yarns, where)
     try:
-        return Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
+        textile = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
+        textile.check_size()
+        return textile
     except FormatError:
         raise
-    except TextileError as e:  # the yarns do not make a periodic textile in this domain
+    except TextileError as e:  # the yarns do not make a periodic textile in this domain, or too large
         raise FormatError(f"{where}: {e}") from None
 
 

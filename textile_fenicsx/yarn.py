@@ -91,8 +91,6 @@ class Yarn:
 
     def __post_init__(self):
         label = self.name or "yarn"
-        if hasattr(self.nodes, "__len__"):
-            limits.check_many(f"{label}: master nodes", len(self.nodes), limits.MAX_NODES_PER_YARN)
         self.nodes = np.array(self.nodes, dtype=float)
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
             raise TextileError(f"{label}: master nodes must be (N, 3) positions, got shape {self.nodes.shape}")
