@@ -26,6 +26,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 import dolfinx
+from textile_fenicsx import limits
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.textile import Textile
 
@@ -58,12 +59,18 @@ class MeshOptions:
     def __post_init__(self):
         if not (np.isfinite(self.seed) and self.seed > 0):
             raise TextileError(f"mesh seed must be a positive size in mm, got {self.seed!r}")
+        limits.check_length("mesh seed", self.seed)
         if self.sliver is not None and not (np.isfinite(self.sliver) and self.sliver >= 0):
             raise TextileError(f"sliver tolerance must be >= 0 mm, got {self.sliver!r}")
+        if self.sliver is not None:
+            limits.check_range("sliver tolerance", self.sliver, 0.0, limits.MAX_SIZE, " mm")
         if not self.max_slope > 0:
             raise TextileError(f"max_slope must be > 0, got {self.max_slope!r}")
+        limits.check_range("max_slope", self.max_slope, 1e-6, limits.MAX_SLOPE)
         if self.memory_limit is not None and not (np.isfinite(self.memory_limit) and self.memory_limit > 0):
             raise TextileError(f"memory limit must be a positive size in GB, got {self.memory_limit!r}")
+        if self.memory_limit is not None:
+            limits.check_range("memory limit", self.memory_limit, 1e-6, limits.MAX_MEMORY_GB, " GB")
 
 
 # Memory of a run per unknown, measured by `make bench` (satin coupons, summed peaks: 3.3e5 dofs on
@@ -85,23 +92,34 @@ def available_memory() -> float:
     return float("inf")
 
 
-def estimated_dofs(textile: Textile, seed: float) -> int:
+def estimated_dofs(textile: Textile, seed: float, repeats: tuple[int, int] = (1, 1)) -> int:
     """Unknowns a seed will give, from the footprint areas: about 2.3 triangles per seed^2 and 2 P2
-    dofs per triangle (within -20 % on the satin; gaps between yarns add cells this ignores)."""
-    area = sum(footprint_area(textile, i, spacing=0.1) for i in range(len(textile.yarns)))
-    return int(4.6 * area / seed**2)
+    dofs per triangle (within -20 % on the satin; gaps between yarns add cells this ignores). A
+    coupon (made by coupon.tile, or to be made with `repeats`) is estimated from its unit cell
+    times the number of repeats, which takes the same time (well under a second) for any coupon."""
+    tiling = getattr(textile, "tiling", None)
+    if tiling is not None:
+        textile, repeats = tiling.unit, (tiling.nx * repeats[0], tiling.ny * repeats[1])
+    spacing = max(0.1, 0.01 * max(textile.cell.lx, textile.cell.ly))  # about 100 stations per cell
+    area = sum(footprint_area(textile, i, spacing=spacing) for i in range(len(textile.yarns)))
+    return int(4.6 * area * repeats[0] * repeats[1] / seed**2)
 
 
-def check_memory(textile: Textile, options: "MeshOptions", ranks: int) -> None:
-    """Refuse, before meshing, a seed whose run would need more memory than the limit."""
-    dofs = estimated_dofs(textile, options.seed)
+def check_memory(textile: Textile, options: "MeshOptions", ranks: int, repeats: tuple[int, int] = (1, 1)) -> None:
+    """Refuse, before meshing (and before tiling a coupon of `repeats` unit cells), a seed whose
+    run would need more memory than the limit."""
+    dofs = estimated_dofs(textile, options.seed, repeats)
     need = dofs * BYTES_PER_DOF + ranks * BYTES_PER_RANK
     limit = available_memory() if options.memory_limit is None else options.memory_limit * 1e9
     if need > limit:
         which = "the memory limit you gave" if options.memory_limit is not None else "the memory available now"
-        raise TextileError(f"mesh seed {options.seed:g} mm would give about {dofs:.3g} unknowns and need about "
-                           f"{need / 1e9:.1f} GB, more than {which} ({limit / 1e9:.1f} GB); use a larger seed "
-                           "(or --memory-limit if you know better)")
+        tiling = getattr(textile, "tiling", None)
+        nx, ny = (tiling.nx, tiling.ny) if tiling is not None else (1, 1)
+        nx, ny = nx * repeats[0], ny * repeats[1]
+        coupon = f"a {nx} x {ny} coupon at " if (nx, ny) != (1, 1) else ""
+        raise TextileError(f"{coupon}mesh seed {options.seed:g} mm would give about {dofs:.3g} unknowns and need "
+                           f"about {need / 1e9:.1f} GB, more than {which} ({limit / 1e9:.1f} GB); use a larger seed"
+                           f"{' or fewer repeats' if coupon else ''} (or --memory-limit if you know better)")
 
 
 @dataclass
@@ -528,8 +546,8 @@ def release_freed_memory() -> None:
 def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
                    comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
     """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm`."""
-    warnings = check_slopes(textile, options)
     check_memory(textile, options, comm.size)
+    warnings = check_slopes(textile, options)
     return _mesh(textile, textile.cell, options, comm, warnings)
 
 

@@ -78,7 +78,7 @@ def test_outputs_complete_and_corrected_tg3_reads_back(satin_run, mpi_tmp_path):
         names = sorted(p.name for p in out.iterdir())
         assert names == ["corrected.json", "corrected.tg3", "fields", "initial.json", "metrics.json",
                          "surfaces_after.stl", "surfaces_after.vtu", "surfaces_before.stl", "surfaces_before.vtu"]
-        assert sorted(p.name for p in (out / "fields").iterdir()) == [f"yarn_{i}.bp" for i in range(8)]
+        assert sorted(p.name for p in (out / "fields").iterdir()) == [f"yarn_{i}.vtu" for i in range(8)]
         m = json.loads((out / "metrics.json").read_text())
         for key in ("interpenetration", "thickness", "crimp"):
             assert set(m[key]) >= {"before", "after"}
@@ -89,6 +89,37 @@ def test_outputs_complete_and_corrected_tg3_reads_back(satin_run, mpi_tmp_path):
             assert np.max(np.abs(a.nodes - b.nodes)) < 1e-6
             for sa, sb in zip(a.section.sections(), b.section.sections()):
                 assert np.max(np.abs(np.subtract(sa.vertices, sb.vertices))) < 1e-6
+
+
+@pytest.mark.mpi
+def test_fields_open_in_meshio_and_pyvista(satin_run, mpi_tmp_path):
+    # fields/yarn_I.vtu: every yarn's mid-surface over its cells in the unit cell, with w, z0, t,
+    # z = z0 + w, gap_below and contact at the vertices (the same on any number of ranks)
+    import meshio
+    import pyvista
+
+    from textile_fenicsx.outputs import FIELD_NAMES, write_fields
+
+    result, _ = satin_run
+    write_fields(result, mpi_tmp_path / "fields")
+    if MPI.COMM_WORLD.rank != 0:
+        return
+    cell = result.textile.cell
+    for y in result.midsurfaces.yarns:
+        path = mpi_tmp_path / "fields" / f"yarn_{y.yarn}.vtu"
+        m = meshio.read(path)
+        assert set(m.point_data) == set(FIELD_NAMES) and list(m.cells_dict) == ["triangle"]
+        assert np.all(m.cell_data["yarn"][0] == y.yarn)
+        d = m.point_data
+        assert np.allclose(d["z"], d["z0"] + d["w"]) and np.allclose(m.points[:, 2], d["z"])
+        assert np.all(d["t"] >= -1e-12) and set(np.round(d["contact"], 9)) <= {0.0, 1.0}
+        x0, x1, y0, y1 = cell.bounds
+        assert np.all((m.points[:, 0] > x0 - 1e-9) & (m.points[:, 0] < x1 + 1e-9)
+                      & (m.points[:, 1] > y0 - 1e-9) & (m.points[:, 1] < y1 + 1e-9))  # no ghost strip
+        assert len(np.unique(np.round(m.points[:, :2], 9), axis=0)) == len(m.points)  # each vertex once
+        assert np.max(np.abs(d["w"])) > 0
+        grid = pyvista.read(path)
+        assert grid.n_points == len(m.points) and set(FIELD_NAMES) <= set(grid.point_data.keys())
 
 
 @pytest.mark.serial

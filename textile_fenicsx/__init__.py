@@ -7,7 +7,8 @@
 Data flows one way (docs/DESIGN.md section 2):
 textile model -> projected mesh (`textile_fenicsx.meshes`) -> UFL forms (`textile_fenicsx.forms`)
 -> solve (`textile_fenicsx.solver`) -> corrected textile (`correct`, checked by `verify`) -> exports.
-The one-call functions (api.py) import the numerical stack only when called.
+The one-call functions (api.py) import the numerical stack only when called. Under mpirun with
+more than one rank, an uncaught exception on any rank ends every rank (parallel.py).
 """
 
 from pathlib import Path as _Path
@@ -29,6 +30,11 @@ def _mount_source_subpackages() -> None:
 
 
 _mount_source_subpackages()
+
+
+from textile_fenicsx.parallel import install_excepthook as _install_excepthook  # noqa: E402
+
+_install_excepthook()  # under mpirun with several ranks: an uncaught exception ends every rank
 
 
 from textile_fenicsx.api import build, read, show_progress, solve  # noqa: E402

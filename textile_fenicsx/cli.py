@@ -8,6 +8,7 @@ waits forever in a collective call.
 """
 
 import argparse
+import errno
 import json
 import logging
 import os
@@ -15,11 +16,12 @@ import signal
 import sys
 import time
 import traceback
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
-from textile_fenicsx import __version__
-from textile_fenicsx.errors import TextileError
-from textile_fenicsx.files import staged_folder
+from textile_fenicsx import __version__, limits
+from textile_fenicsx.errors import OutputError, TextileError
+from textile_fenicsx.files import claim_output, staged_folder
 
 
 def _versions(_args) -> int:
@@ -40,6 +42,7 @@ def _report(args) -> int:
     from textile_fenicsx.config import load_model
     from textile_fenicsx.metrics import measure
 
+    limits.check_count("--grid", args.grid, 1, limits.MAX_GRID)
     textile = load_model(args.model)
     metrics = measure(textile, args.grid, comm=MPI.COMM_WORLD)
     if MPI.COMM_WORLD.rank == 0:
@@ -80,26 +83,31 @@ def _build(args) -> int:
             raise TextileError(f"--set expects KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
         options[key.strip()] = _parse_value(value.strip())
+    _check_repeat(args)
     try:
         textile = build(args.name, **options)
     except TypeError as e:
         raise TextileError(f"build {args.name}: {e}") from None
+    textile.check_size()
     textile = _repeated(textile, args)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     start = time.perf_counter()
     stem = args.name
-    surfaces = YarnSurfaces.build(textile)
-    with staged_folder(args.out) as tmp:
-        steps = [("model", lambda: save_model(textile, tmp / f"{stem}.json")),
-                 ("TexGen", lambda: write_tg3(textile, tmp / f"{stem}.tg3")),
-                 ("surfaces", lambda: (surfaces.write(tmp / f"{stem}.vtu"), surfaces.write(tmp / f"{stem}.stl")))]
-        if not args.no_picture:
-            steps.append(("picture", lambda: plot_textile(textile, surfaces, tmp / f"{stem}.png")))
-        for label, step in steps:
-            print(f"build: writing {label} ({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
-            step()
-        names = sorted(f.name for f in tmp.iterdir())
+    written = [f"{stem}.{ext}" for ext in ("json", "tg3", "vtu", "stl", "png")]
+    with claim_output(args.out, names=written):
+        surfaces = YarnSurfaces.build(textile)
+        with staged_folder(args.out, remove=written) as tmp:
+            steps = [("model", lambda: save_model(textile, tmp / f"{stem}.json")),
+                     ("TexGen", lambda: write_tg3(textile, tmp / f"{stem}.tg3")),
+                     ("surfaces", lambda: (surfaces.write(tmp / f"{stem}.vtu"), surfaces.write(tmp / f"{stem}.stl")))]
+            if not args.no_picture:
+                steps.append(("picture", lambda: _named(tmp / f"{stem}.png", plot_textile, textile, surfaces,
+                                                        tmp / f"{stem}.png")))
+            for label, step in steps:
+                print(f"build: writing {label} ({time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
+                step()
+            names = sorted(f.name for f in tmp.iterdir())
     for name in names:
         print(Path(args.out) / name)
     return 0
@@ -115,36 +123,47 @@ def _mesh(args) -> int:
     from textile_fenicsx.plotting import plot_projected_mesh
 
     comm = MPI.COMM_WORLD
-    textile = _repeated(load_model(args.model), args)
     options = MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit)
-    start = time.perf_counter()
-    projected = projected_mesh(textile, options, comm)
-    ms = mid_surfaces(projected)
-    stats = mesh_statistics(ms)
-    stats["time_s"] = time.perf_counter() - start
-    if args.out:
-        with staged_folder(args.out, comm) as tmp:
-            with dolfinx.io.XDMFFile(comm, tmp / "mesh.xdmf", "w") as f:
-                f.write_mesh(projected.mesh)
-                projected.cell_tags.name = "covering_set"
-                f.write_meshtags(projected.cell_tags, projected.mesh.geometry)
-            if comm.rank == 0:
-                (tmp / "mesh.json").write_text(json.dumps(stats, indent=1))
-            if not args.no_picture:
-                plot_projected_mesh(projected, tmp / "mesh.png")
+    _check_repeat(args)
+    textile = _repeated(load_model(args.model), args, options, comm.size)
+    written = ["mesh.xdmf", "mesh.h5", "mesh.json", "mesh.png"]
+    claim = claim_output(args.out, inputs=[args.model], names=written, force=args.force, comm=comm)
+    with claim if args.out else nullcontext():
+        start = time.perf_counter()
+        projected = projected_mesh(textile, options, comm)
+        ms = mid_surfaces(projected)
+        stats = mesh_statistics(ms)
+        stats["time_s"] = time.perf_counter() - start
+        if args.out:
+            with staged_folder(args.out, comm, remove=written) as tmp:
+                with _naming(tmp / "mesh.xdmf"):
+                    with dolfinx.io.XDMFFile(comm, tmp / "mesh.xdmf", "w") as f:
+                        f.write_mesh(projected.mesh)
+                        projected.cell_tags.name = "covering_set"
+                        f.write_meshtags(projected.cell_tags, projected.mesh.geometry)
+                if comm.rank == 0:
+                    _named(tmp / "mesh.json", (tmp / "mesh.json").write_text, json.dumps(stats, indent=1))
+                if not args.no_picture:
+                    _named(tmp / "mesh.png", plot_projected_mesh, projected, tmp / "mesh.png")
     if comm.rank == 0:
         print(json.dumps(stats, indent=1))
     return 0
 
 
+def _named_weave(text: str) -> bool:
+    from textile_fenicsx.weaves import PATTERNS
+
+    return text in PATTERNS or text == "orthogonal"
+
+
 def load_input(text: str):
     """A model from a file (.tg3, .toml, .json) or a named weave with its default sizes."""
     from textile_fenicsx.config import load_model
-    from textile_fenicsx.weaves import PATTERNS, build
+    from textile_fenicsx.weaves import build
 
-    if text in PATTERNS or text == "orthogonal":
+    if _named_weave(text):
         return build(text)
-    return load_model(text)
+    return load_model(text)  # checked against the size bounds by the readers
 
 
 def _solve(args) -> int:
@@ -152,36 +171,40 @@ def _solve(args) -> int:
 
     from textile_fenicsx.correct import CorrectionOptions
     from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.outputs import write_failed
+    from textile_fenicsx.outputs import FAILED_NAMES, RESULT_NAMES, write_failed
     from textile_fenicsx.pipeline import Settings, run
     from textile_fenicsx.solver import PlateParameters, SolverError, SolverOptions
 
     comm = MPI.COMM_WORLD
-    t = time.perf_counter()
-    textile = _repeated(load_input(args.input), args)
-    model_time = time.perf_counter() - t
-    settings = Settings(
+    settings = Settings(  # every option checked before any work
         mesh=MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit),
         plate=PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et),
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
                              penetration_tol=args.penetration_tol),
         correction=CorrectionOptions())
-    result = run(textile, settings, comm)
-    result.times["model"] = model_time
-    if not result.converged:
-        where = ""
+    _check_repeat(args)
+    t = time.perf_counter()
+    textile = _repeated(load_input(args.input), args, settings.mesh, comm.size)
+    model_time = time.perf_counter() - t
+    inputs = [] if _named_weave(args.input) else [args.input]
+    claim = claim_output(args.out, inputs=inputs, names=RESULT_NAMES + FAILED_NAMES, force=args.force, comm=comm)
+    with claim if args.out else nullcontext():
+        result = run(textile, settings, comm)
+        result.times["model"] = model_time
+        if not result.converged:
+            where = ""
+            if args.out:
+                write_failed(result, args.out)
+                where = f"; {args.out}/ holds only FAILED and log.json (the iteration log)"
+            hint = " (try a larger --max-iterations)" if "cap" in result.solution.reason else ""
+            raise SolverError(f"{result.solution.reason}{hint}{where}")
+        verdict = result.verdict
         if args.out:
-            write_failed(result, args.out)
-            where = f"; {args.out}/ holds only FAILED and log.json (the iteration log)"
-        hint = " (try a larger --max-iterations)" if "cap" in result.solution.reason else ""
-        raise SolverError(f"{result.solution.reason}{hint}{where}")
-    verdict = result.verdict
-    if args.out:
-        out = result.write(args.out, figures=not args.no_figures)
-        if comm.rank == 0:
-            print((out / "metrics.json").read_text())
-    elif comm.rank == 0:
-        print(json.dumps({**result.summary(), "verdict": verdict}, indent=1))
+            out = result.write(args.out, figures=not args.no_figures)
+            if comm.rank == 0:
+                print((out / "metrics.json").read_text())
+        elif comm.rank == 0:
+            print(json.dumps({**result.summary(), "verdict": verdict}, indent=1))
     if not verdict["passed"]:
         kept = f"; the outputs are kept in {args.out}/ (rejected.tg3, FAILED)" if args.out else ""
         raise SolverError("the corrected model fails its check: "
@@ -189,15 +212,52 @@ def _solve(args) -> int:
     return 0
 
 
-def _repeated(textile, args):
-    """The model, or its nx x ny coupon when --repeat was given (with free edges if asked)."""
+def _check_repeat(args) -> None:
+    """--repeat and --free-edges, checked before any model is read."""
     if getattr(args, "repeat", None) is None:
         if getattr(args, "free_edges", False):
             raise TextileError("--free-edges needs --repeat NX NY (use --repeat 1 1 for one cell)")
+        return
+    for label, n in zip(("nx", "ny"), args.repeat):
+        if n < 1:
+            raise TextileError(f"coupon repeats {label} must be a whole number >= 1, got {n!r}")
+        limits.check_count(f"coupon repeats {label} (--repeat)", n, 1, limits.MAX_REPEATS)
+
+
+def _repeated(textile, args, mesh=None, ranks: int = 1):
+    """The model, or its nx x ny coupon when --repeat was given (with free edges if asked). With
+    mesh options, the coupon's memory is estimated from the unit cell first (quick for any
+    coupon), and a coupon too large for the memory is refused before it is built."""
+    _check_repeat(args)
+    if getattr(args, "repeat", None) is None:
         return textile
     from textile_fenicsx.coupon import tile
 
+    if mesh is not None:
+        from textile_fenicsx.meshes.projected import check_memory
+
+        check_memory(textile, mesh, ranks, tuple(args.repeat))
     return tile(textile, *args.repeat, free_edges=args.free_edges)
+
+
+def _named(path, write, *args):
+    """write(*args), its errors naming `path`."""
+    from textile_fenicsx.files import naming
+
+    with naming(path):
+        return write(*args)
+
+
+@contextmanager
+def _naming(path):
+    """A native writer's failure (HDF5, ADIOS2 raise RuntimeError) as an OSError naming `path`."""
+    from textile_fenicsx.files import naming
+
+    with naming(path):
+        try:
+            yield
+        except RuntimeError as e:
+            raise OSError(errno.EIO, f"the writer failed ({e})", str(path)) from e
 
 
 def _repeat_argument(p: argparse.ArgumentParser) -> None:
@@ -281,6 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
         "DIR/mesh.json and DIR/mesh.png. Runs under mpirun.")
     p.add_argument("model", help="model file: .tg3, .toml or .json")
     p.add_argument("--out", metavar="DIR", help="write mesh.xdmf, mesh.json and mesh.png there")
+    p.add_argument("--force", action="store_true",
+                   help="allow --out to be the model's own folder (the model file itself is never replaced)")
     _mesh_arguments(p)
     _repeat_argument(p)
     p.add_argument("--no-picture", action="store_true", help="skip the PNG")
@@ -293,14 +355,19 @@ def build_parser() -> argparse.ArgumentParser:
         "printing one line per iteration (active contact dofs, changes, max penetration, residual, time). "
         "Prints a JSON summary (dofs, iterations, max penetration, max |w|, seconds per stage). With --out DIR "
         "writes DIR/corrected.tg3, DIR/corrected.json, DIR/initial.json, DIR/metrics.json (before/after), "
-        "DIR/fields/yarn_I.bp (w, z0, t, z for ParaView), DIR/surfaces_{before,after}.{vtu,stl} and figures "
-        "DIR/view_{before,after}.png, DIR/cross_sections.png; the folder appears only when complete. "
+        "DIR/fields/yarn_I.vtu (w, z0, t, z, gap_below, contact at the mid-surface's vertices), "
+        "DIR/surfaces_{before,after}.{vtu,stl} and figures DIR/view_{before,after}.png, DIR/cross_sections.png; "
+        "the folder appears only when complete, and earlier results in it are replaced. DIR is checked before the "
+        "solve (not an existing file, writable, not the input's folder without --force) and one run at a time "
+        "writes it (a second run into DIR fails at once). "
         "If the contact iteration does not converge, DIR holds only FAILED (the reason) and log.json "
         "(the iteration log) and the exit code is 1. Exit codes: 0 done, 1 the run failed, 2 bad input, "
         "130 interrupted (no output written).")
     p.add_argument("input", help="model file or named weave")
     p.add_argument("--out", metavar="DIR", help="write the corrected model, metrics, fields, surfaces, figures")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--force", action="store_true",
+                   help="allow --out to be the input's own folder (the input file itself is never replaced)")
     _mesh_arguments(p)
     _repeat_argument(p)
     p.add_argument("--db1", type=float, default=1.0, help="bending stiffness along the fibre [N mm] (1)")
@@ -326,13 +393,19 @@ def _interrupt(signum, _frame):
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
-def _fail(code: int, message: str) -> int:
-    """Report an error from this rank and, under MPI, end every rank with the exit code."""
+def _fail(code: int, message: str, collective: bool = False) -> int:
+    """Report an error from this rank and, under MPI, end every rank with the exit code.
+    collective: every rank raised the same error at the same place (files.claim_output): rank 0
+    reports it and every rank returns the code."""
     rank, size = 0, 1
     if "mpi4py.MPI" in sys.modules:
         from mpi4py import MPI
 
         rank, size = MPI.COMM_WORLD.rank, MPI.COMM_WORLD.size
+    if collective and size > 1:
+        if rank == 0:
+            print(f"textile-fenicsx: error: {message}", file=sys.stderr, flush=True)
+        return code
     where = f" (rank {rank})" if size > 1 and rank else ""
     print(f"textile-fenicsx: error{where}: {message}", file=sys.stderr, flush=True)
     if size > 1:
@@ -364,20 +437,22 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "run"):
         parser.print_help()
         return EXIT_INPUT
-    signal.signal(signal.SIGTERM, _interrupt)  # Ctrl-C already raises KeyboardInterrupt
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, _interrupt)
     from textile_fenicsx.errors import SolverError
 
     _log_to_stderr()
     try:
         return args.run(args)
     except TextileError as e:
-        return _fail(EXIT_INPUT, str(e))
-    except SolverError as e:
-        return _fail(EXIT_FAILED, str(e))
+        return _fail(EXIT_INPUT, str(e), getattr(e, "collective", False))
+    except (SolverError, OutputError) as e:
+        return _fail(EXIT_FAILED, str(e), getattr(e, "collective", False))
     except KeyboardInterrupt as e:
-        return _fail(EXIT_INTERRUPTED, f"interrupted ({e or 'SIGINT'}); no output was written")
+        return _fail(EXIT_INTERRUPTED, f"interrupted ({str(e) or 'SIGINT'}); no output was written")
     except OSError as e:
-        return _fail(EXIT_FAILED, f"cannot read or write {e.filename or 'a file'}: {e.strerror or e}")
+        return _fail(EXIT_FAILED, f"cannot read or write {e.filename or 'a file'}: {e.strerror or e}",
+                     getattr(e, "collective", False))
     except Exception as e:  # a bug: say so, with the traceback, and still end every rank
         traceback.print_exc()
         return _fail(EXIT_FAILED, f"internal error {type(e).__name__}: {e}")

@@ -36,6 +36,7 @@ import numpy as np
 
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
+from textile_fenicsx.limits import MAX_NODES_PER_YARN, MAX_YARNS, check_file_size, check_many
 from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
 from textile_fenicsx.textile import Cell, Resolution, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
@@ -155,6 +156,8 @@ def yarn_from_dict(d, where: str) -> Yarn:
         opt["fibres"] = (f["count"], f["diameter"])
     if "interpolation" in d:
         opt["interpolation"] = d["interpolation"]
+    if isinstance(d["nodes"], list):
+        check_many(f"{where}.nodes", len(d["nodes"]), MAX_NODES_PER_YARN, FormatError)
     try:
         return Yarn(nodes=_array(d["nodes"], f"{where}.nodes", (3,)), section=section,
                     name=str(d.get("name", "")), **opt)
@@ -216,6 +219,10 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
             raise FormatError(f"{where}.weave: {e}") from None
         textile.name = str(d.get("name", kind))
         textile.resolution = resolution
+        try:
+            textile.check_size()
+        except TextileError as e:
+            raise FormatError(f"{where}.resolution: {e}") from None
         return textile
     if "cell" not in d:
         raise FormatError(f"{where}: a yarn list needs a [cell] table")
@@ -227,12 +234,15 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
         raise FormatError(f"{where}.cell: {e}") from None
     if not isinstance(d["yarns"], list) or not d["yarns"]:
         raise FormatError(f"{where}.yarns: expected a non-empty list of yarn tables")
+    check_many(f"{where}.yarns", len(d["yarns"]), MAX_YARNS, FormatError)
     yarns = [yarn_from_dict(y, f"{where}.yarns[{k}]") for k, y in enumerate(d["yarns"])]
     try:
-        return Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+        textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+        textile.check_size()
+        return textile
     except FormatError:
         raise
-    except TextileError as e:  # the yarns do not make a periodic textile in this cell
+    except TextileError as e:  # the yarns do not make a periodic textile in this cell, or too large
         raise FormatError(f"{where}: {e}") from None
 
 
@@ -258,6 +268,7 @@ def load_model(path) -> Textile:
         return read_tg3(path)
     if suffix not in (".toml", ".json"):
         raise FormatError(f"{path}: unknown model format {suffix!r} (use .tg3, .toml or .json)")
+    check_file_size(path)
     try:
         text = path.read_text()
     except OSError as e:
@@ -268,6 +279,8 @@ def load_model(path) -> Textile:
         data = tomllib.loads(text) if suffix == ".toml" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as e:
         raise FormatError(f"{path}: malformed {suffix[1:].upper()}: {e}") from None
+    except RecursionError:
+        raise FormatError(f"{path}: nested too deeply") from None
     if not isinstance(data, dict):
         raise FormatError(f"{path}: the top level must be a table/object")
     try:

@@ -20,6 +20,7 @@ from math import gcd
 import numpy as np
 
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.limits import MAX_REPEATS, check_count
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import NodeSections, PositionSections
 
@@ -69,8 +70,13 @@ def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textil
     """The textile repeated nx times along x and ny times along y, as one periodic cell, or as a
     coupon with free edges."""
     for label, n in (("nx", nx), ("ny", ny)):
-        if int(n) != n or n < 1:
+        try:
+            whole = int(n) == n
+        except (TypeError, ValueError, OverflowError):
+            whole = False
+        if not whole or n < 1:
             raise TextileError(f"coupon repeats {label} must be a whole number >= 1, got {n!r}")
+        check_count(f"coupon repeats {label}", n, 1, MAX_REPEATS)
     nx, ny = int(nx), int(ny)
     c = textile.cell
     if not c.periodic:

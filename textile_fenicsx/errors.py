@@ -17,6 +17,10 @@ class SolverError(RuntimeError):
     """A linear or nonlinear solve did not converge, or gave a non-finite answer."""
 
 
+class OutputError(RuntimeError):
+    """An output folder that cannot be written now (another run is writing it)."""
+
+
 def check_positive(name: str, value, allow_zero: bool = False) -> float:
     """Return value as a float if it is finite and > 0 (>= 0 with allow_zero); else raise TextileError."""
     try:

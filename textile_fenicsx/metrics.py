@@ -12,6 +12,7 @@ clipped to the cell's z range when it has one. Then:
 
 import numpy as np
 
+from textile_fenicsx.limits import MAX_GRID, check_count
 from textile_fenicsx.textile import Columns, Textile
 
 
@@ -55,6 +56,7 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
     With an MPI communicator the grid points are split over its ranks and the sums reduced, so
     every rank returns the same answer as a serial call.
     """
+    n = check_count("metrics grid (rays per cell side)", n, 1, MAX_GRID)
     xy, dA = textile.cell.grid(n)
     if comm is not None and comm.size > 1:
         xy = np.array_split(xy, comm.size)[comm.rank]

@@ -4,8 +4,9 @@ DIR/corrected.tg3        corrected model, a plain CTextile TexGen opens
 DIR/corrected.json       the same in our format;  DIR/initial.json: the model before
 DIR/metrics.json         metrics before/after (interpenetration, thickness, crimp, yarn volume, vf),
                          dofs, iterations, time per stage, parameters, versions
-DIR/fields/yarn_I.bp     mid-surface fields of yarn I (w, z0, t, z = z0 + w, gap_below, contact) for
-                         ParaView (VTX)
+DIR/fields/yarn_I.vtu    mid-surface fields of yarn I over its cells in the unit cell, at the mesh's
+                         vertices (points at x, y, z0 + w): w, z0, t, z = z0 + w, gap_below, contact;
+                         cell data yarn (ParaView, meshio, pyvista)
 DIR/surfaces_before.vtu/.stl, DIR/surfaces_after.vtu/.stl   yarn surfaces clipped to the cell
 DIR/view_before.png, DIR/view_after.png, DIR/cross_sections.png   figures
 A run whose check on the corrected model failed (verify.py) writes all of the above, with the
@@ -24,10 +25,9 @@ from pathlib import Path
 import numpy as np
 
 import dolfinx
-import dolfinx.io
 from textile_fenicsx import __version__
 from textile_fenicsx.config import save_model
-from textile_fenicsx.files import staged_folder
+from textile_fenicsx.files import naming, output_lock, staged_folder
 from textile_fenicsx.tg3 import write_tg3
 
 log = logging.getLogger(__name__)
@@ -108,6 +108,12 @@ def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: boo
     failed keeps everything for inspection, its corrected model named rejected.tg3/.json, and a
     FAILED file with the reasons."""
     comm = run.comm
+    with output_lock(out, comm):  # first: a folder that cannot be written fails before the metrics
+        return _write_run(run, out, figures, fields, surfaces)
+
+
+def _write_run(run, out, figures: bool, fields: bool, surfaces: bool) -> Path:
+    comm = run.comm
     t0 = time.perf_counter()
     metrics = metrics_document(run)
     passed = metrics["verdict"]["passed"]
@@ -120,19 +126,10 @@ def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: boo
             save_model(corrected, tmp / f"{stem}.json")
             save_model(run.textile, tmp / "initial.json")
             if not passed:
-                (tmp / "FAILED").write_text("\n".join(f["message"] for f in metrics["verdict"]["failures"]) + "\n")
+                _write_text(tmp / "FAILED", "\n".join(f["message"] for f in metrics["verdict"]["failures"]) + "\n")
         if fields:
             log.info("outputs: mid-surface fields")
-            if comm.rank == 0:
-                (tmp / "fields").mkdir()
-            comm.barrier()
-            sol = run.solution
-            for y, w, gap, contact in zip(run.midsurfaces.yarns, sol.w, sol.gap, sol.contact):
-                z = dolfinx.fem.Function(y.V, name="z")
-                z.x.array[:] = y.z0.x.array + w.x.array
-                with dolfinx.io.VTXWriter(y.mesh.comm, tmp / "fields" / f"yarn_{y.yarn}.bp",
-                                          [w, y.z0, y.t, z, gap, contact], engine="BP4") as vtx:
-                    vtx.write(0.0)
+            write_fields(run, tmp / "fields")
         if comm.rank == 0 and (surfaces or figures):
             from textile_fenicsx.surfaces import YarnSurfaces
 
@@ -149,14 +146,88 @@ def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: boo
                 from textile_fenicsx.plotting import plot_cross_sections, plot_textile
 
                 log.info("outputs: figures")
-                plot_textile(run.textile, built["before"], tmp / "view_before.png", f"{run.textile.name}: before")
-                plot_textile(corrected, built["after"], tmp / "view_after.png", f"{run.textile.name}: after")
-                plot_cross_sections(run.textile, corrected, tmp / "cross_sections.png", cut_lines(run.textile))
+                with naming(tmp / "view_before.png"):
+                    plot_textile(run.textile, built["before"], tmp / "view_before.png", f"{run.textile.name}: before")
+                with naming(tmp / "view_after.png"):
+                    plot_textile(corrected, built["after"], tmp / "view_after.png", f"{run.textile.name}: after")
+                with naming(tmp / "cross_sections.png"):
+                    plot_cross_sections(run.textile, corrected, tmp / "cross_sections.png", cut_lines(run.textile))
         metrics["time_s"]["outputs"] = time.perf_counter() - t0
         metrics["time_s"]["total"] = metrics["time_s"].get("total", 0.0) + metrics["time_s"]["outputs"]
         if comm.rank == 0:
-            (tmp / "metrics.json").write_text(json.dumps(metrics, indent=1))
+            _write_text(tmp / "metrics.json", json.dumps(metrics, indent=1))
     return Path(out)
+
+
+def _write_text(path: Path, text: str) -> None:
+    with naming(path):
+        path.write_text(text)
+
+
+FIELD_NAMES = ("w", "z0", "t", "z", "gap_below", "contact")
+
+
+def _vertex_values(f: dolfinx.fem.Function, cells: np.ndarray) -> np.ndarray:
+    """Values (len(cells), 3) of a Lagrange field at the vertices of the given local cells of its
+    (degree-1) mesh, in the geometry dofmap's order (a P1 interpolant is exact at the vertices)."""
+    msh = f.function_space.mesh
+    V1 = dolfinx.fem.functionspace(msh, ("Lagrange", 1))
+    f1 = dolfinx.fem.Function(V1)
+    f1.interpolate(f)
+    return f1.x.array[V1.dofmap.list[cells]]
+
+
+def yarn_fields(run, k: int):
+    """Yarn k's mid-surface fields over its cells in the unit cell (not the ghost strip), at their
+    vertices, gathered on rank 0 (collective): (points (N, 3) at x, y, z0 + w, triangles (M, 3),
+    {name: values (N,)}) on rank 0, None elsewhere. Points are sorted by x then y, so the file does
+    not depend on the number of ranks."""
+    from textile_fenicsx.meshes.midsurface import REAL
+
+    y, sol = run.midsurfaces.yarns[k], run.solution
+    msh = y.mesh
+    n_owned = msh.topology.index_map(2).size_local
+    cells = y.cell_kind.indices[(y.cell_kind.values == REAL) & (y.cell_kind.indices < n_owned)]
+    nodes = msh.geometry.dofmap[cells]
+    ids = msh.geometry.index_map().local_to_global(nodes.ravel().astype(np.int32)).reshape(-1, 3)
+    xy = msh.geometry.x[nodes][:, :, :2]
+    w, z0 = _vertex_values(sol.w[k], cells), _vertex_values(y.z0, cells)
+    values = {"w": w, "z0": z0, "t": _vertex_values(y.t, cells), "z": z0 + w,
+              "gap_below": _vertex_values(sol.gap[k], cells), "contact": _vertex_values(sol.contact[k], cells)}
+    parts = msh.comm.gather((ids, xy, values), root=0)
+    if msh.comm.rank != 0:
+        return None
+    ids = np.concatenate([p[0] for p in parts]).ravel()
+    xy = np.concatenate([p[1] for p in parts]).reshape(-1, 2)
+    unique, first, tri = np.unique(ids, return_index=True, return_inverse=True)
+    order = np.lexsort((xy[first, 1], xy[first, 0]))  # by x, then y
+    rank_of = np.empty_like(order)
+    rank_of[order] = np.arange(len(order))
+    tri = rank_of[tri.reshape(-1, 3)]
+    tri = tri[np.lexsort(np.sort(tri, axis=1).T[::-1])]
+    data = {name: np.concatenate([p[2][name] for p in parts]).ravel()[first][order] for name in FIELD_NAMES}
+    points = np.column_stack((xy[first][order], data["z"]))
+    return points, tri, data
+
+
+def write_fields(run, folder: Path) -> None:
+    """folder/yarn_I.vtu for every yarn I (yarn_fields; collective, rank 0 writes)."""
+    import meshio
+
+    comm = run.comm
+    if comm.rank == 0:
+        with naming(folder):
+            folder.mkdir(exist_ok=True)
+    for k, y in enumerate(run.midsurfaces.yarns):
+        gathered = yarn_fields(run, k)
+        if gathered is None:
+            continue
+        points, tri, data = gathered
+        path = folder / f"yarn_{y.yarn}.vtu"
+        mesh = meshio.Mesh(points, [("triangle", tri.astype(np.int64))], point_data=data,
+                           cell_data={"yarn": [np.full(len(tri), y.yarn, np.int32)]})
+        with naming(path):
+            meshio.write(path, mesh, file_format="vtu")
 
 
 def write_failed(run, out) -> Path:
@@ -168,6 +239,6 @@ def write_failed(run, out) -> Path:
                 "mesh": asdict(run.settings.mesh), "ranks": comm.size, "versions": versions()}
     with staged_folder(out, comm, remove=RESULT_NAMES) as tmp:
         if comm.rank == 0:
-            (tmp / "FAILED").write_text(sol.reason + "\n")
-            (tmp / "log.json").write_text(json.dumps(document, indent=1))
+            _write_text(tmp / "FAILED", sol.reason + "\n")
+            _write_text(tmp / "log.json", json.dumps(document, indent=1))
     return Path(out)

@@ -11,7 +11,8 @@ from math import gamma, pi, sqrt
 
 import numpy as np
 
-from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.errors import TextileError
+from textile_fenicsx.limits import MAX_POLYGON_POINTS, MAX_POWER, MAX_SECTION, MIN_POWER, check_length, check_range
 
 
 class Section:
@@ -39,8 +40,8 @@ class Ellipse(Section):
     height: float
 
     def __post_init__(self):
-        check_positive("ellipse width", self.width)
-        check_positive("ellipse height", self.height)
+        check_length("ellipse width", self.width, MAX_SECTION)
+        check_length("ellipse height", self.height, MAX_SECTION)
 
     def curve(self, t):
         a = 2 * pi * np.asarray(t, float)
@@ -64,9 +65,9 @@ class PowerEllipse(Section):
     x_offset: float = 0.0
 
     def __post_init__(self):
-        check_positive("power-ellipse width", self.width)
-        check_positive("power-ellipse height", self.height)
-        check_positive("power-ellipse power", self.power)
+        check_length("power-ellipse width", self.width, MAX_SECTION)
+        check_length("power-ellipse height", self.height, MAX_SECTION)
+        check_range("power-ellipse power", self.power, MIN_POWER, MAX_POWER)
         if not np.isfinite(self.x_offset) or abs(self.x_offset) >= 0.5 * self.width:
             raise TextileError(f"power-ellipse x_offset must lie within +-width/2, got {self.x_offset!r}")
 
@@ -98,8 +99,8 @@ class Lenticular(Section):
     distortion: float = 0.0
 
     def __post_init__(self):
-        check_positive("lenticular width", self.width)
-        check_positive("lenticular height", self.height)
+        check_length("lenticular width", self.width, MAX_SECTION)
+        check_length("lenticular height", self.height, MAX_SECTION)
         if not np.isfinite(self.distortion) or abs(self.distortion) >= 0.5 * self.height:
             raise TextileError(f"lenticular distortion must lie within +-height/2, got {self.distortion!r}")
 
@@ -137,11 +138,17 @@ class Polygon(Section):
     vertices: tuple = field(default=())
 
     def __post_init__(self):
+        n = len(self.vertices) if hasattr(self.vertices, "__len__") else 0
+        if n > MAX_POLYGON_POINTS:
+            raise TextileError(f"polygon section has {n} points, more than the limit of {MAX_POLYGON_POINTS}")
         v = np.asarray(self.vertices, float)
         if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3:
             raise TextileError(f"polygon section needs at least 3 (s, u) points, got shape {v.shape}")
         if not np.all(np.isfinite(v)):
             raise TextileError("polygon section has a non-finite coordinate")
+        if np.max(np.abs(v)) > MAX_SECTION:
+            raise TextileError(f"polygon section has a point {np.max(np.abs(v)):g} mm from the yarn's centre, beyond "
+                               f"the limit of {MAX_SECTION:g} mm")
         if _signed_area(v) <= 0:
             raise TextileError("polygon section must run anticlockwise in (s, u) and enclose an area")
         object.__setattr__(self, "vertices", tuple(map(tuple, v)))

@@ -14,7 +14,8 @@ from itertools import product
 import numpy as np
 from scipy.spatial import cKDTree
 
-from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx import limits
+from textile_fenicsx.errors import TextileError
 from textile_fenicsx.yarn import Yarn
 
 # Vertical rays are nudged off the query points by this much [mm] (a fixed irrational direction), so
@@ -37,8 +38,8 @@ class Cell:
     periodic: bool = True
 
     def __post_init__(self):
-        object.__setattr__(self, "lx", check_positive("cell size lx", self.lx))
-        object.__setattr__(self, "ly", check_positive("cell size ly", self.ly))
+        object.__setattr__(self, "lx", limits.check_length("cell size lx", self.lx, limits.MAX_CELL))
+        object.__setattr__(self, "ly", limits.check_length("cell size ly", self.ly, limits.MAX_CELL))
         for name in ("x0", "y0"):
             value = getattr(self, name)
             try:
@@ -47,11 +48,13 @@ class Cell:
                 raise TextileError(f"cell origin {name} must be a number, got {value!r}") from None
             if not np.isfinite(value):
                 raise TextileError(f"cell origin {name} must be finite, got {getattr(self, name)!r}")
+            limits.check_coordinates(f"cell origin {name}", value)
             object.__setattr__(self, name, value)
         if self.z_range is not None:
             lo, hi = map(float, self.z_range)
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
                 raise TextileError(f"cell z_range must be finite with zmax > zmin, got {self.z_range!r}")
+            limits.check_coordinates("cell z_range", (lo, hi))
             object.__setattr__(self, "z_range", (lo, hi))
         if not isinstance(self.periodic, (bool, np.bool_)):
             raise TextileError(f"cell periodic must be true or false, got {self.periodic!r}")
@@ -86,9 +89,9 @@ class Resolution:
     section_points: int = 64
 
     def __post_init__(self):
-        check_positive("resolution spacing", self.spacing)
-        if int(self.section_points) < 8:
-            raise TextileError(f"resolution section_points must be >= 8, got {self.section_points!r}")
+        limits.check_length("resolution spacing", self.spacing)
+        limits.check_count("resolution section_points", self.section_points, limits.MIN_SECTION_POINTS,
+                           limits.MAX_SECTION_POINTS)
 
 
 @dataclass
@@ -131,6 +134,7 @@ class Textile:
     def __post_init__(self):
         if not self.yarns:
             raise TextileError(f"textile {self.name!r} has no yarns")
+        limits.check_many(f"textile {self.name!r}: yarns", len(self.yarns), limits.MAX_YARNS)
         for i, y in enumerate(self.yarns):
             if not isinstance(y, Yarn):
                 raise TextileError(f"textile {self.name!r}: yarn {i} is not a Yarn")
@@ -139,6 +143,28 @@ class Textile:
             if y.periodic and self.cell.periodic:
                 self._check_closes(y)
         self._triangles = {}
+
+    def check_size(self) -> None:
+        """Refuse a model read from a file or asked for on the command line whose master nodes or
+        yarn surfaces are beyond the bounds (limits.py), before any surface is built: the nodes
+        per yarn and in all, and the surface points (stations at least every resolution spacing
+        along each yarn and 4 per segment, section_points each). Models the pipeline makes (a
+        coupon, a corrected model) are not checked: their size follows from checked inputs."""
+        for y in self.yarns:
+            limits.check_many(f"{y.name}: master nodes", len(y.nodes), limits.MAX_NODES_PER_YARN)
+        limits.check_many(f"textile {self.name!r}: master nodes of all yarns", sum(len(y.nodes) for y in self.yarns),
+                          limits.MAX_NODES)
+        r = self.resolution
+        if not isinstance(r, Resolution):
+            raise TextileError(f"textile {self.name!r}: resolution must be a Resolution, got {type(r).__name__}")
+        stations = sum(float(np.sum(np.maximum(np.ceil(np.linalg.norm(np.diff(y.nodes, axis=0), axis=1) / r.spacing), 4)))
+                       for y in self.yarns)
+        points = stations * r.section_points
+        if points > limits.MAX_SURFACE_POINTS:
+            raise TextileError(f"textile {self.name!r}: its yarn surfaces would have about {points:.3g} points "
+                               f"(stations every {r.spacing:g} mm along {len(self.yarns)} yarns, {r.section_points} "
+                               f"points per section), more than the limit of {limits.MAX_SURFACE_POINTS:.3g}; use a "
+                               "larger resolution spacing or fewer section_points")
 
     def _check_closes(self, yarn: Yarn) -> None:
         """A periodic yarn must come back onto itself after whole cells: its last master node is
@@ -319,7 +345,10 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     """Crossings of vertical lines through pts (N, 2) with triangles (T, 3, 3).
 
     Returns (point index, z) of every crossing. Triangles and points are matched through a uniform
-    grid of bins so the work grows with the number of crossings, not points x triangles.
+    grid of bins so the work grows with the number of crossings, not points x triangles. The bins
+    are `bin_size` (the surface's station spacing) or smaller where the triangles are much smaller
+    (yarns with dense master nodes), and the candidate pairs are tested in chunks, so the memory
+    stays bounded whatever the triangles' sizes.
     """
     if len(tris) == 0 or len(pts) == 0:
         return np.zeros(0, int), np.zeros(0)
@@ -328,32 +357,66 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     keep = np.abs(area2) > 1e-14 * bin_size**2
     tris, area2 = tris[keep], area2[keep]
     lo_p, hi_p = pts.min(axis=0), pts.max(axis=0)
-    nb = np.maximum(np.ceil((hi_p - lo_p) / bin_size).astype(int), 1)
-    pbin = np.minimum(((pts - lo_p) / bin_size).astype(int), nb - 1)
+    t_min, t_max = tris[:, :, :2].min(axis=1), tris[:, :, :2].max(axis=1)
+    bin_size = _bin_size(t_max - t_min, len(pts), hi_p - lo_p, bin_size)
+    nb = np.maximum(np.ceil((hi_p - lo_p) / bin_size).astype(np.int64), 1)
+    pbin = np.minimum(((pts - lo_p) / bin_size).astype(np.int64), nb - 1)
     pid = pbin[:, 0] * nb[1] + pbin[:, 1]
     order = np.argsort(pid, kind="stable")
     spid = pid[order]
-    tlo = np.floor((tris[:, :, :2].min(axis=1) - lo_p) / bin_size).astype(int)
-    thi = np.floor((tris[:, :, :2].max(axis=1) - lo_p) / bin_size).astype(int)
+    tlo = np.floor((t_min - lo_p) / bin_size).astype(np.int64)
+    thi = np.floor((t_max - lo_p) / bin_size).astype(np.int64)
     tlo, thi = np.maximum(tlo, 0), np.minimum(thi, nb - 1)
     ok = np.all(tlo <= thi, axis=1)
     tri_ids = np.flatnonzero(ok)
-    span = thi[ok] - tlo[ok] + 1
+    tlo, span = tlo[ok], thi[ok] - tlo[ok] + 1
     counts = span[:, 0] * span[:, 1]
     rep = np.repeat(np.arange(len(tri_ids)), counts)
     local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    bx = tlo[ok][rep, 0] + local // span[rep, 1]
-    by = tlo[ok][rep, 1] + local % span[rep, 1]
-    bid = bx * nb[1] + by
+    bid = (tlo[rep, 0] + local // span[rep, 1]) * nb[1] + tlo[rep, 1] + local % span[rep, 1]
+    del local
     start = np.searchsorted(spid, bid, "left")
     n = np.searchsorted(spid, bid, "right") - start
-    t_of = tri_ids[np.repeat(rep, n)]
-    p_of = order[np.repeat(start, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
-    T, p = tris[t_of], pts[p_of]
-    A, B, C = T[:, 0], T[:, 1], T[:, 2]
-    l1 = ((p[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (p[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])) / area2[t_of]
-    l2 = ((B[:, 0] - A[:, 0]) * (p[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (p[:, 0] - A[:, 0])) / area2[t_of]
-    l0 = 1 - l1 - l2
-    inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
-    z = l0 * A[:, 2] + l1 * B[:, 2] + l2 * C[:, 2]
-    return p_of[inside], z[inside]
+    del bid
+    hit_p, hit_z = [], []
+    ends = np.cumsum(n)
+    first = 0
+    while first < len(n):  # (triangle, bin) entries whose candidate pairs add up to at most _CHUNK
+        last = max(int(np.searchsorted(ends, (ends[first - 1] if first else 0) + _CHUNK, "right")), first + 1)
+        nn = n[first:last]
+        t_of = tri_ids[np.repeat(rep[first:last], nn)]
+        p_of = order[np.repeat(start[first:last], nn) + np.arange(nn.sum()) - np.repeat(np.cumsum(nn) - nn, nn)]
+        T, p = tris[t_of], pts[p_of]
+        A, B, C = T[:, 0], T[:, 1], T[:, 2]
+        l1 = ((p[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (p[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])) / area2[t_of]
+        l2 = ((B[:, 0] - A[:, 0]) * (p[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (p[:, 0] - A[:, 0])) / area2[t_of]
+        l0 = 1 - l1 - l2
+        inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
+        hit_p.append(p_of[inside])
+        hit_z.append(l0[inside] * A[inside, 2] + l1[inside] * B[inside, 2] + l2[inside] * C[inside, 2])
+        first = last
+    if not hit_p:
+        return np.zeros(0, int), np.zeros(0)
+    return np.concatenate(hit_p), np.concatenate(hit_z)
+
+
+# Candidate (triangle, point) pairs tested at once by _vertical_hits (about 100 bytes each).
+_CHUNK = 2_000_000
+
+
+def _bin_size(extent: np.ndarray, n_points: int, box: np.ndarray, largest: float) -> float:
+    """The bin size, at most `largest`, that makes the fewest (triangle, bin) entries plus
+    candidate pairs for triangles of these plan extents (T, 2) and points spread over `box`."""
+    area = max(float(box[0]) * float(box[1]), (largest / 4) ** 2, 1e-300)
+    density = n_points / area
+    best, best_cost = largest, np.inf
+    size = largest
+    for _ in range(12):
+        entries = float(np.sum((extent[:, 0] / size + 1) * (extent[:, 1] / size + 1)))
+        cost = entries * (1 + density * size * size)
+        if cost < best_cost:
+            best, best_cost = size, cost
+        size /= 2
+        if np.max(box) / size > 1e7:  # keeps the bin indices small
+            break
+    return best

@@ -17,6 +17,8 @@ import numpy as np
 
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
+from textile_fenicsx.limits import (MAX_NODES, MAX_NODES_PER_YARN, MAX_POLYGON_POINTS, MAX_YARNS, check_file_size,
+                                    check_many)
 from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
@@ -75,6 +77,7 @@ def _section(el, where: str) -> Section:
             return Lenticular(_attr(el, "Width", where), _attr(el, "Height", where),
                               _attr(el, "Distortion", where, 0.0))
         if kind == "CSectionPolygon":
+            check_many(f"{where}: PolygonPoint elements", len(el.findall("PolygonPoint")), MAX_POLYGON_POINTS, FormatError)
             pts = [_floats(p.get("value"), f"{where} PolygonPoint", 2) for p in el.findall("PolygonPoint")]
             return Polygon(tuple(map(tuple, pts)))
     except TextileError as e:
@@ -132,7 +135,9 @@ def _yarn(el, textile_where: str) -> Yarn:
     for child in el:
         if child.tag not in known:
             raise FormatError(f"{where}: unsupported element <{child.tag}>")
-    nodes = sorted(el.findall("MasterNode"), key=lambda n: _attr(n, "index", where, kind=int))
+    nodes = el.findall("MasterNode")
+    check_many(f"{where}: MasterNode elements", len(nodes), MAX_NODES_PER_YARN, FormatError)
+    nodes = sorted(nodes, key=lambda n: _attr(n, "index", where, kind=int))
     if len(nodes) < 2:
         raise FormatError(f"{where}: needs at least 2 MasterNode elements, has {len(nodes)}")
     pos = np.array([_floats(n.get("Position"), f"{where} MasterNode {i} Position", 3) for i, n in enumerate(nodes)])
@@ -217,6 +222,7 @@ def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
 def read_tg3(path, textile: str | None = None) -> Textile:
     """Read a TexGen .tg3 file as a Textile (the named textile, or the only/first one)."""
     path = Path(path)
+    check_file_size(path)
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as e:
@@ -238,6 +244,8 @@ def read_tg3(path, textile: str | None = None) -> Textile:
         if child.tag not in {"Domain", "Yarn"} | IGNORED_TEXTILE_CHILDREN:
             raise FormatError(f"{where}: unsupported element <{child.tag}>")
     yarn_els = el.findall("Yarn")
+    check_many(f"{where}: Yarn elements", len(yarn_els), MAX_YARNS, FormatError)
+    check_many(f"{where}: MasterNode elements of all yarns", len(el.findall("Yarn/MasterNode")), MAX_NODES, FormatError)
     if not yarn_els:
         raise FormatError(f"{where}: the file holds no yarns (saved with OUTPUT_MINIMAL?); "
                           "save it from TexGen with OUTPUT_STANDARD or OUTPUT_FULL")
@@ -250,10 +258,12 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
     cell = _domain(el, yarns, where)
     try:
-        return Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
+        textile = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
+        textile.check_size()
+        return textile
     except FormatError:
         raise
-    except TextileError as e:  # the yarns do not make a periodic textile in this domain
+    except TextileError as e:  # the yarns do not make a periodic textile in this domain, or too large
         raise FormatError(f"{where}: {e}") from None
 
 

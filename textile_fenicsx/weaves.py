@@ -13,6 +13,7 @@ from math import gcd
 import numpy as np
 
 from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.limits import MAX_PATTERN, MAX_SECTION, MAX_SIZE, check_count, check_length
 from textile_fenicsx.sections import Ellipse, PowerEllipse
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, Yarn
@@ -27,7 +28,7 @@ def plain() -> np.ndarray:
 
 def twill(over: int = 2, under: int = 2) -> np.ndarray:
     """over/under twill: each warp floats over `over` wefts, under `under`, shifting by one."""
-    over, under = int(over), int(under)
+    over, under = check_count("twill over", over, 1, MAX_PATTERN), check_count("twill under", under, 1, MAX_PATTERN)
     if over < 1 or under < 1:
         raise TextileError(f"twill needs over >= 1 and under >= 1, got {over}/{under}")
     n = over + under
@@ -37,7 +38,8 @@ def twill(over: int = 2, under: int = 2) -> np.ndarray:
 
 def satin(harness: int = 5, move: int = 2) -> np.ndarray:
     """Warp-faced n-harness satin: warp i goes under weft (i * move) mod harness only."""
-    harness, move = int(harness), int(move)
+    harness = check_count("satin harness", harness, 1, MAX_PATTERN)
+    move = check_count("satin move", move, 1, MAX_PATTERN)
     if harness < 5 or not (1 < move < harness - 1) or gcd(harness, move) != 1:
         raise TextileError(f"satin needs harness >= 5 and 1 < move < harness - 1 coprime with it, "
                            f"got harness={harness}, move={move} (4-harness: crowfoot_satin())")
@@ -65,6 +67,9 @@ def check_pattern(pattern) -> np.ndarray:
         raise TextileError("weave pattern must be a rectangular matrix of 0 and 1") from None
     if P.ndim != 2 or P.size == 0:
         raise TextileError(f"weave pattern must be a non-empty rectangular matrix, got shape {P.shape}")
+    if max(P.shape) > MAX_PATTERN:
+        raise TextileError(f"weave pattern: {P.shape[0]} x {P.shape[1]} is larger than the limit of {MAX_PATTERN} "
+                           "warps or wefts")
     if not np.all((P == 0) | (P == 1)):
         raise TextileError("weave pattern entries must be 0 (weft over) or 1 (warp over)")
     for i, row in enumerate(P):
@@ -81,7 +86,7 @@ def _per_yarn(name: str, value, n: int) -> np.ndarray:
     if v.shape != (n,):
         raise TextileError(f"{name}: expected one value or {n} values, got {len(v)}")
     for k, x in enumerate(v):
-        check_positive(f"{name}[{k}]", x)
+        check_length(f"{name}[{k}]", x, MAX_SECTION if "spacing" not in name else MAX_SIZE)
     return v.copy()
 
 
@@ -119,7 +124,7 @@ def weave2d(pattern, spacing=2.0, width=1.8, height=0.3, thickness=None, *, weft
         check_positive("section power", power)
     _check_fit("warp", wy, sy, allow_overlap)
     _check_fit("weft", wx, sx, allow_overlap)
-    T = float(np.max(hy) + np.max(hx)) if thickness is None else check_positive("fabric thickness", thickness)
+    T = float(np.max(hy) + np.max(hx)) if thickness is None else check_length("fabric thickness", thickness)
     if T < max(hy.max(), hx.max()):
         raise TextileError(f"fabric thickness {T:g} mm is less than the tallest yarn")
     Lx, Ly = float(sx.sum()), float(sy.sum())
@@ -159,10 +164,9 @@ def orthogonal(n_warp_stacks: int = 2, n_weft_columns: int = 4, warp_layers: int
     one at each weft column (binder_pattern[b][j] = 1: over), passing through the thickness in the
     gap between weft columns. Sizes in mm; powers are the power-ellipse sections' powers.
     """
-    for label, v in (("n_warp_stacks", n_warp_stacks), ("n_weft_columns", n_weft_columns),
-                     ("warp_layers", warp_layers)):
-        if int(v) != v or v < 1:
-            raise TextileError(f"orthogonal: {label} must be a positive integer, got {v!r}")
+    n_warp_stacks, n_weft_columns, warp_layers = (
+        check_count(f"orthogonal: {label}", v, 1, MAX_PATTERN) for label, v in
+        (("n_warp_stacks", n_warp_stacks), ("n_weft_columns", n_weft_columns), ("warp_layers", warp_layers)))
     if n_weft_columns < 2:
         raise TextileError("orthogonal: needs at least 2 weft columns for binders to interlace")
     for label, v in (("warp_spacing", warp_spacing), ("warp_width", warp_width), ("warp_height", warp_height),
@@ -171,6 +175,8 @@ def orthogonal(n_warp_stacks: int = 2, n_weft_columns: int = 4, warp_layers: int
                      ("binder_width", binder_width), ("binder_height", binder_height),
                      ("binder_power", binder_power)):
         check_positive(f"orthogonal: {label}", v)
+        if not label.endswith("power"):
+            check_length(f"orthogonal: {label}", v, MAX_SECTION if "spacing" not in label else MAX_SIZE)
     _check_fit("warp", [warp_width], [warp_spacing], allow_overlap)
     _check_fit("weft", [weft_width], [weft_spacing], allow_overlap)
     _check_fit("binder", [binder_width], [binder_spacing], allow_overlap)

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx import limits
+from textile_fenicsx.errors import TextileError
 from textile_fenicsx.sections import Section, blend
 
 INTERPOLATIONS = ("bezier", "cubic", "linear")
@@ -58,6 +59,7 @@ class PositionSections:
     def __post_init__(self):
         if len(self.positions) != len(self.at_positions) or not self.positions:
             raise TextileError("position sections need as many positions as sections, at least one")
+        limits.check_many("position sections", len(self.positions), limits.MAX_NODES_PER_YARN)
         p = np.asarray(self.positions, float)
         if np.any(~np.isfinite(p)) or np.any(np.diff(p) < 0):
             raise TextileError(f"section positions must be finite and increasing, got {self.positions}")
@@ -99,6 +101,7 @@ class Yarn:
             raise TextileError(f"{label}: needs at least 2 master nodes, got {len(self.nodes)}")
         if not np.all(np.isfinite(self.nodes)):
             raise TextileError(f"{label}: a master node position is not finite")
+        limits.check_coordinates(f"{label}: master node positions", self.nodes)
         seg = np.linalg.norm(np.diff(self.nodes, axis=0), axis=1)
         if np.any(seg <= 1e-12):
             i = int(np.argmin(seg))
@@ -118,6 +121,8 @@ class Yarn:
         self.repeats = np.array(self.repeats, dtype=float).reshape(-1, 3)
         if not np.all(np.isfinite(self.repeats)):
             raise TextileError(f"{label}: a repeat vector is not finite")
+        limits.check_many(f"{label}: repeat vectors", len(self.repeats), 3)
+        limits.check_coordinates(f"{label}: repeat vectors", self.repeats)
         n = len(self.nodes)
         for attr, shape in (("tangents", (n, 3)), ("ups", (n, 3)), ("angles", (n,))):
             value = getattr(self, attr)
@@ -128,8 +133,8 @@ class Yarn:
                 setattr(self, attr, value)
         if self.fibres is not None:
             count, diameter = self.fibres
-            self.fibres = (check_positive(f"{label}: fibre count", count),
-                           check_positive(f"{label}: fibre diameter", diameter))
+            self.fibres = (limits.check_range(f"{label}: fibre count", count, 1, 1e7),
+                           limits.check_length(f"{label}: fibre diameter", diameter, 1.0, 1e-4))
         self._spline = None
         self._node_tangents = None
 

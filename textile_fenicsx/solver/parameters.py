@@ -4,6 +4,7 @@ from dataclasses import dataclass, field
 
 import dolfinx
 from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.limits import MAX_ITERATIONS, check_count
 from textile_fenicsx.solver.linear import DIRECT_LDLT
 
 __all__ = ["METHODS", "PlateParameters", "Solution", "SolverOptions"]
@@ -61,8 +62,7 @@ class SolverOptions:
     def __post_init__(self):
         if self.method not in METHODS:
             raise TextileError(f"solver method must be one of {', '.join(map(repr, METHODS))}, got {self.method!r}")
-        if int(self.max_iterations) < 1:
-            raise TextileError(f"max_iterations must be >= 1, got {self.max_iterations!r}")
+        check_count("max_iterations", self.max_iterations, 1, MAX_ITERATIONS)
         check_positive("penetration_tol", self.penetration_tol)
         check_positive("displacement_tol", self.displacement_tol)
 
