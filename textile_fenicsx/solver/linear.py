@@ -24,7 +24,10 @@ DIRECT_LU = {
 # negative pivots (the inertia), is exact on any number of ranks: the convex energy's matrix has
 # exactly one, from the multiplier that pins the common translation. ICNTL(7) = 2, AMF ordering:
 # Debian's MUMPS has no METIS/SCOTCH and its automatic choice is PORD; on a 3.3e5-dof satin
-# coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s.
+# coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s. ICNTL(14) = 100: room for
+# 100 % more factor than the analysis predicts (20 % by default): the interior point's weights
+# change the pivots' order of magnitude from step to step, and delayed pivots of an indefinite
+# LDL^T need the room (without it MUMPS can stop with INFOG(1) = -9 on 2 ranks).
 DIRECT_LDLT = {
     "ksp_type": "preonly",
     "pc_type": "cholesky",
@@ -32,6 +35,7 @@ DIRECT_LDLT = {
     "mat_mumps_icntl_7": 2,
     "mat_mumps_icntl_13": 1,
     "mat_mumps_icntl_24": 1,
+    "mat_mumps_icntl_14": 100,
 }
 
 _serial = itertools.count()
@@ -53,6 +57,12 @@ def check_converged(ksp: PETSc.KSP, what: str) -> None:
 def null_pivots(ksp: PETSc.KSP) -> int:
     """Null pivots MUMPS found (ICNTL(24) = 1); 0 for other solvers."""
     return _mumps_infog(ksp, 28)
+
+
+def mumps_error(ksp: PETSc.KSP) -> str:
+    """MUMPS' own status after a failed factorisation (INFOG(1), INFOG(2)), or ''."""
+    code, detail = _mumps_infog(ksp, 1), _mumps_infog(ksp, 2)
+    return f"MUMPS INFOG(1) = {code}, INFOG(2) = {detail}" if code < 0 else ""
 
 
 def negative_pivots(ksp: PETSc.KSP) -> int:

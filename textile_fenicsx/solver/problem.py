@@ -22,7 +22,7 @@ from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.contact import (build_pairs, contact_nodes, gathered_unknowns, jacobian_values,
                                             residual_values)
-from textile_fenicsx.solver.linear import DirectSolver, SolverError, negative_pivots, null_pivots
+from textile_fenicsx.solver.linear import DirectSolver, SolverError, mumps_error, negative_pivots, null_pivots
 from textile_fenicsx.solver.parameters import PlateParameters, SolverOptions
 from textile_fenicsx.solver.pattern import FixedPattern
 from textile_fenicsx.solver.periodic import Periodicity, seam_facet_tags
@@ -193,8 +193,9 @@ class ContactProblem:
         if reason <= 0 or nulls > 0:
             hint = ("with Et = 0 a yarn that touches no other yarn is held by nothing: give Et > 0"
                     if self.params.Et == 0 else "check the stiffnesses (Db1, Db2, sigma1) for zeros")
+            mumps = mumps_error(ksp)
             raise SolverError(f"the linear system is singular at {what} (PETSc reason {reason}, {nulls} null "
-                              f"pivots): {hint}")
+                              f"pivots{', ' + mumps if mumps else ''}): {hint}")
         if negative >= 0 and negative != self.expected_negative_pivots:
             raise SolverError(f"the energy is not convex at {what}: its matrix has {negative} negative pivots where "
                               f"{self.expected_negative_pivots} is expected (a mesh the bending penalty cannot hold?)")
