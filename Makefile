@@ -36,7 +36,8 @@ test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
 
 bench:
-	$(ENV) python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
+	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
+	$(ENV) env TEXTILE_FENICSX_TEXGEN_PYTHON=$$texgen python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
 
 clean:
 	rm -rf $(OUT)

@@ -131,6 +131,48 @@ def one_case(name: str) -> dict:
     }
 
 
+def cli_case(model: str, seed: float) -> dict:
+    """The command a user runs, timed from outside in a fresh process: `textile-fenicsx solve MODEL
+    --seed SEED --out DIR`, every output and figure included; the folder's size and its own
+    account of where the time went (metrics.json time_s)."""
+    import shutil
+    import tempfile
+
+    out = Path(tempfile.mkdtemp(prefix="bench-cli-")) / "run"
+    path = SATIN if model == "satin4" else model
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "textile_fenicsx", "solve", str(path), "--seed", str(seed),
+                           "--out", str(out)], capture_output=True, text=True, cwd=REPO)
+    wall = time.perf_counter() - start
+    record = {"case": f"{model} {seed} (CLI)", "seed": seed, "exit": proc.returncode, "wall_s": wall}
+    if (out / "metrics.json").is_file():
+        m = json.loads((out / "metrics.json").read_text())
+        record.update(time_s=m["time_s"], dofs=m["dofs"], iterations=m["iterations"],
+                      folder_mb=sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) / 1e6,
+                      outputs_fraction=m["time_s"]["outputs"] / wall)
+    shutil.rmtree(out.parent, ignore_errors=True)
+    return record
+
+
+def texgen_case(model: str, seed: float, timeout: float = 3600) -> dict:
+    """TexGen's own solver on the same model (bench/texgen.py, pytexgen in its own venv: the
+    python named by TEXTILE_FENICSX_TEXGEN_PYTHON, which `make bench` sets up); {} without it."""
+    import tempfile
+
+    python = os.environ.get("TEXTILE_FENICSX_TEXGEN_PYTHON", "")
+    if not python or not os.access(python, os.X_OK):
+        print("bench: TexGen's solver skipped: no pytexgen (make bench sets TEXTILE_FENICSX_TEXGEN_PYTHON through "
+              "bench/texgen_env.sh --fenicsx-env)", file=sys.stderr, flush=True)
+        return {}
+    with tempfile.TemporaryDirectory(prefix="bench-texgen-") as tmp:
+        proc = subprocess.run([python, str(REPO / "bench" / "texgen.py"), "solve", model, str(seed), tmp,
+                               "--timeout", str(timeout)], capture_output=True, text=True, cwd=REPO)
+    if proc.returncode != 0:
+        print(f"bench: TexGen's solver failed: {proc.stderr.strip()[-300:]}", file=sys.stderr, flush=True)
+        return {}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def _run(cmd: list[str]) -> str:
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, cwd=REPO)
     if proc.returncode != 0:
@@ -151,8 +193,13 @@ def driver(names: list[str], out: Path) -> None:
             cmd = ([sys.executable] if ranks == 1 else ["mpirun", "-n", str(ranks), sys.executable])
             text = _run(cmd + [str(Path(__file__).resolve()), "--case", name])
             records.append(json.loads(text.strip().splitlines()[-1]))
+    print("bench: the CLI as a user runs it, and TexGen's solver, on satin4.tg3 at seed 0.25", file=sys.stderr,
+          flush=True)
+    cli = cli_case("satin4", 0.25)
+    texgen = texgen_case("satin4", 0.25)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"machine": os.uname().nodename, "cpus": os.cpu_count(), "records": records}, indent=1))
+    out.write_text(json.dumps({"machine": os.uname().nodename, "cpus": os.cpu_count(), "load": os.getloadavg(),
+                               "records": records, "cli": cli, "texgen": texgen}, indent=1))
     cols = ("model", "mesh", "midsurfaces", "assemble", "solve", "correct", "metrics", "export", "end_to_end", "extras")
     head = f"{'case':26s} {'ranks':>5s} {'dofs':>8s} {'it':>4s} " + " ".join(f"{c[:8]:>8s}" for c in cols) + f" {'peak MB':>8s}"
     print(head)
@@ -160,6 +207,14 @@ def driver(names: list[str], out: Path) -> None:
         print(f"{r['case']:26s} {r['ranks']:5d} {r['dofs']:8d} {r['iterations']:4d} "
               + " ".join(f"{r['time_s'][c]:8.2f}" for c in cols) + f" {r['memory_mb']['peak_sum']:8.0f}")
     print(f"(seconds; peak MB: resident set summed over ranks; written to {out})")
+    if "wall_s" in cli:
+        print(f"CLI `textile-fenicsx solve satin4.tg3 --seed 0.25 --out DIR` (figures included): {cli['wall_s']:.1f} s "
+              f"wall, of which outputs {cli.get('time_s', {}).get('outputs', float('nan')):.1f} s "
+              f"({100 * cli.get('outputs_fraction', float('nan')):.0f} %), folder {cli.get('folder_mb', 0):.1f} MB")
+    if texgen.get("seconds"):
+        print(f"TexGen's solver, same model and seed: {texgen['seconds']:.0f} s: ours is "
+              f"{texgen['seconds'] / cli['wall_s']:.0f} x faster")
+    print(f"(load average during the bench: {', '.join(f'{v:.1f}' for v in os.getloadavg())})")
 
 
 def main() -> None:

@@ -206,14 +206,11 @@ def footprint_outlines(textile: Textile, i: int, spacing: float, pad: float = 0.
     return result
 
 
-def snap_to_sides(points: np.ndarray, middle: np.ndarray, cell, tol: float) -> np.ndarray:
-    """Footprint edge points within tol of a cell side line (or of one of its periodic copies)
-    moved outward, away from the yarn's middle line (`middle`, one point per edge point), to 2 tol
-    beyond the side: gmsh's boolean tolerance (tol) would merge an edge that close onto the side on
-    one side of the cell and not on the other (a binder's edge 0.0125 mm inside the top side: its
-    periodic copy lies outside the bottom side), and the footprint would stop being periodic. Moved
-    outward, the yarn covers a strip of 2 tol across the side, on both sides alike (its periodic
-    copy does the same), and never loses plate where it really is. Coordinates are compared modulo
+def snap_to_sides(points: np.ndarray, cell, tol: float) -> np.ndarray:
+    """Footprint outline points within tol of a cell side line (or of one of its periodic copies)
+    put onto it. gmsh's boolean tolerance (tol) would otherwise merge such a point onto the side
+    on one side of the cell and leave its periodic copy beside the other (a binder's edge 0.0125 mm
+    inside the top side: its copy lies outside the bottom side). Coordinates are compared modulo
     the cell, so every periodic copy of a point moves alike."""
     if not cell.periodic or tol <= 0:
         return points
@@ -221,14 +218,43 @@ def snap_to_sides(points: np.ndarray, middle: np.ndarray, cell, tol: float) -> n
     for axis, lo, length in ((0, cell.bounds[0], cell.lx), (1, cell.bounds[2], cell.ly)):
         line = lo + np.round((out[:, axis] - lo) / length) * length
         near = np.abs(out[:, axis] - line) < tol
-        # only where the edge runs along the side (its direction within 10 degrees of the side's):
-        # an edge that crosses the side keeps its points (moving them would fold the outline)
-        tangent = np.gradient(points, axis=0) if len(points) > 1 else np.zeros_like(points)
-        parallel = np.abs(tangent[:, axis]) < 0.17 * np.linalg.norm(tangent, axis=1)
-        along = near & parallel
-        outward = np.where(points[:, axis] >= middle[:, axis], 1.0, -1.0)
-        out[along, axis] = line[along] + 2 * tol * outward[along]
+        out[near, axis] = line[near]
     return out
+
+
+def side_marks(chains: list[np.ndarray], cell, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where footprint outlines (polylines) meet the cell's sides, as coordinates along them: the
+    y of every meeting with x = x0 + k lx and the x of every meeting with y = y0 + k ly, each
+    wrapped into the cell. Both sides of a pair get a vertex at each, so that their curves pair
+    one to one (gmsh's periodic meshing needs that, and a yarn edge that ends on one side need not
+    end on the other)."""
+    x0, x1, y0, y1 = cell.bounds
+    marks = [[], []]
+    for chain in chains:
+        for axis, lo, length in ((0, x0, cell.lx), (1, y0, cell.ly)):
+            other = 1 - axis
+            rel = (chain[:, axis] - lo) / length
+            k = np.round(rel)
+            on = np.abs(rel - k) * length < 1e-9 * length
+            marks[axis].append(chain[on, other])
+            # crossings of a line between consecutive points
+            a, b = chain[:-1], chain[1:]
+            fa, fb = np.floor((a[:, axis] - lo) / length), np.floor((b[:, axis] - lo) / length)
+            cross = (fa != fb) & ~on[:-1] & ~on[1:]
+            if np.any(cross):
+                line = lo + np.maximum(fa[cross], fb[cross]) * length
+                t = (line - a[cross, axis]) / (b[cross, axis] - a[cross, axis])
+                marks[axis].append(a[cross, other] + t * (b[cross, other] - a[cross, other]))
+    out = []
+    for axis, (lo, length) in enumerate(((y0, cell.ly), (x0, cell.lx))):
+        v = np.concatenate(marks[axis]) if marks[axis] else np.zeros(0)
+        v = lo + np.mod(v - lo, length)
+        v = np.unique(np.round(v, 9))
+        v = v[(v - lo > tol) & (lo + length - v > tol)]  # not at the corners
+        if len(v) > 1:  # one vertex for marks closer than the tolerance
+            v = v[np.r_[True, np.diff(v) > tol]]
+        out.append(v)
+    return out[0], out[1]
 
 
 def _clip_to_box(poly: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:
@@ -272,13 +298,19 @@ def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str)
     sliver = options.seed / 20 if options.sliver is None else options.sliver
     gmsh.model.add(comm_self_name)
     gmsh.option.setNumber("Geometry.ToleranceBoolean", sliver)
-    box = occ.addRectangle(x0, y0, 0, cell.lx, cell.ly)
+    if cell.periodic:
+        outlines = [(i, [(snap_to_sides(r, cell, sliver), snap_to_sides(l_, cell, sliver)) for r, l_ in sides])
+                    for i, sides in outlines]
+        on_x, on_y = side_marks([np.vstack((r, l_[::-1], r[:1])) for _, sides in outlines for r, l_ in sides],
+                                cell, sliver)
+        box = _box_with_marks(cell, on_x, on_y)
+    else:
+        box = occ.addRectangle(x0, y0, 0, cell.lx, cell.ly)
     pieces = []  # (yarn, surface tag) of each footprint piece inside the cell
     for i, sides in outlines:
         for right, left in sides:
-            middle = (right + left) / 2
-            right, left = snap_to_sides(right, middle, cell, sliver), snap_to_sides(left, middle, cell, sliver)
             # Each side is one smooth spline through its chain: gmsh then places nodes by the seed.
+            right, left = _distinct(right), _distinct(left)
             pr = [occ.addPoint(px, py, 0) for px, py in right]
             pl = [occ.addPoint(px, py, 0) for px, py in left[::-1]]
             loop = [occ.addSpline(pr), occ.addLine(pr[-1], pl[0]), occ.addSpline(pl), occ.addLine(pl[-1], pr[0])]
@@ -352,6 +384,25 @@ def _gmsh_model(cell, outlines: list, options: MeshOptions, comm_self_name: str)
                       "min_angle_deg": float(angles.min()),
                       "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
                       "regions": int(len(covering)), "sliver_tolerance_mm": sliver}
+
+
+def _distinct(chain: np.ndarray) -> np.ndarray:
+    """The chain without points that repeat the one before (snapping can make them)."""
+    step = np.linalg.norm(np.diff(chain, axis=0), axis=1)
+    return chain[np.r_[True, step > 1e-9]]
+
+
+def _box_with_marks(cell, on_x: np.ndarray, on_y: np.ndarray) -> int:
+    """The cell as a polygon surface with vertices at the marks, on both sides of each pair."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    x0, x1, y0, y1 = cell.bounds
+    ring = ([(x, y0) for x in np.r_[x0, on_y]] + [(x1, y) for y in np.r_[y0, on_x]]
+            + [(x, y1) for x in np.r_[x1, on_y[::-1]]] + [(x0, y) for y in np.r_[y1, on_x[::-1]]])
+    pts = [occ.addPoint(px, py, 0) for px, py in ring]
+    lines = [occ.addLine(pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts))]
+    return occ.addPlaneSurface([occ.addCurveLoop(lines)])
 
 
 def _periodic_sides(cell, sliver: float) -> None:

@@ -24,7 +24,7 @@ or a generic yarn list (what `save_model` writes, JSON):
 
 Section tables: type = ellipse | lenticular | power_ellipse | polygon, with width, height and
 (lenticular) distortion, (power_ellipse) power and x_offset, (polygon) points = [[s, u], ...].
-A top-level `name` and `[resolution]` (spacing, section_points) are optional. Unknown keys are
+A top-level `name` and `[resolution]` (spacing, section_points, per_segment) are optional. Unknown keys are
 errors naming the key, so a typo never passes silently.
 """
 
@@ -199,7 +199,7 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     _keys(d, where, {"name", "weave", "cell", "yarns", "resolution"})
     resolution = Resolution()
     if "resolution" in d:
-        _keys(d["resolution"], f"{where}.resolution", {"spacing", "section_points"})
+        _keys(d["resolution"], f"{where}.resolution", {"spacing", "section_points", "per_segment"})
         try:
             resolution = Resolution(**d["resolution"])
         except TextileError as e:
@@ -254,7 +254,8 @@ def textile_to_dict(t: Textile) -> dict:
     if not c.periodic:
         cell["periodic"] = False
     return {"name": t.name, "cell": {k: (float(v) if not isinstance(v, (list, bool)) else v) for k, v in cell.items()},
-            "resolution": {"spacing": t.resolution.spacing, "section_points": t.resolution.section_points},
+            "resolution": {"spacing": t.resolution.spacing, "section_points": t.resolution.section_points,
+                           "per_segment": t.resolution.per_segment},
             "yarns": [yarn_to_dict(y) for y in t.yarns]}
 
 
@@ -289,9 +290,21 @@ def load_model(path) -> Textile:
         raise FormatError(f"{path}: nested too deeply") from None
 
 
+def _rounded(value):
+    """The JSON-ready value with every float rounded to 10 significant digits."""
+    if isinstance(value, float):
+        return float(f"{value:.10g}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_rounded(v) for v in value]
+    return value
+
+
 def save_model(textile: Textile, path) -> Path:
-    """Write the textile in our JSON format, atomically."""
-    text = json.dumps(textile_to_dict(textile), indent=1)
+    """Write the textile in our JSON format, atomically (numbers to 10 significant digits, lists
+    on one line)."""
+    text = json.dumps(_rounded(textile_to_dict(textile)), separators=(",", ":"))
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)

@@ -21,7 +21,7 @@ from textile_fenicsx.errors import GeometryError, TextileError, check_positive
 from textile_fenicsx.fields import evaluate
 from textile_fenicsx.sections import Polygon
 from textile_fenicsx.textile import Cell, Textile
-from textile_fenicsx.yarn import ConstantSection, NodeSections, Yarn
+from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
 
 
 @dataclass(frozen=True)
@@ -161,9 +161,46 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     ratio = (_areas(u0, v0) / _areas(u0, v_new))[:, None]
     u_new, v_new = u0 * np.minimum(1.0, ratio), v_new * np.maximum(1.0, ratio)
     polys = np.stack((u_new, v_new), axis=-1)
-    sections = tuple(Polygon(tuple(map(tuple, p))) for p in polys)
-    return Yarn(new_pos, NodeSections(sections), "cubic", yarn.periodic, yarn.repeats, ups=ups,
-                name=yarn.name, fibres=yarn.fibres)
+    return Yarn(new_pos, sparse_sections(new_pos, polys, yarn.periodic, SECTION_TOL * _heights(polys).min()),
+                "cubic", yarn.periodic, yarn.repeats, ups=ups, name=yarn.name, fibres=yarn.fibres)
+
+
+# a station's section is kept when the blend of its neighbours misses it by more than this part of
+# the yarn's height (the files stay small: most stations of a corrected yarn blend to 1e-3)
+SECTION_TOL = 1e-3
+
+
+def _heights(polys: np.ndarray) -> np.ndarray:
+    return np.ptp(polys[..., 1], axis=1)
+
+
+def sparse_sections(nodes: np.ndarray, polys: np.ndarray, periodic: bool, tol: float):
+    """Sections at the stations (nodes) as PositionSections holding only the polygons that the
+    linear blend of the kept ones (in TexGen's position: the fraction of the length along the
+    straight segments between nodes) would miss by more than tol [mm] (Douglas-Peucker on the
+    stations); NodeSections when nearly all are needed."""
+    seg = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
+    frac = np.concatenate(([0.0], np.cumsum(seg))) / np.sum(seg)
+    last = len(polys) - 1 if periodic else len(polys)  # a periodic yarn's last station is its first
+    keep = np.zeros(len(polys), bool)
+    keep[0] = keep[len(polys) - 1] = True
+    stack = [(0, len(polys) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        u = (frac[a + 1:b] - frac[a]) / (frac[b] - frac[a])
+        blended = polys[a] + (polys[b] - polys[a]) * u[:, None, None]
+        miss = np.max(np.linalg.norm(polys[a + 1:b] - blended, axis=2), axis=1)
+        k = int(np.argmax(miss))
+        if miss[k] > tol:
+            keep[a + 1 + k] = True
+            stack += [(a, a + 1 + k), (a + 1 + k, b)]
+    kept = np.flatnonzero(keep[:last]) if periodic else np.flatnonzero(keep)
+    if len(kept) > 0.8 * len(polys):
+        return NodeSections(tuple(Polygon(tuple(map(tuple, p))) for p in polys))
+    return PositionSections(tuple(float(frac[k]) for k in kept),
+                            tuple(Polygon(tuple(map(tuple, polys[k]))) for k in kept))
 
 
 def _areas(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -191,5 +228,7 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
     heights = [max(s.height for s in y.section.sections()) for y in yarns]
     lo, hi = z.min() - max(heights), z.max() + max(heights)
     z_range = None if c.z_range is None else (min(c.z_range[0], lo), max(c.z_range[1], hi))
-    return Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected",
-                   resolution=textile.resolution)
+    # its surfaces need no finer stations than its own (one polygon per station of the correction)
+    resolution = replace(textile.resolution, spacing=max(textile.resolution.spacing, spacing),
+                         section_points=n_points)
+    return Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution)

@@ -107,6 +107,7 @@ def split_steep(textile: Textile, spacing: float) -> Split:
             continue
         pieces = []
         for k, (s0, s1) in enumerate(runs):
+            s0, s1 = _clear_of_sides(textile, yarn, s0, s1, spacing / 2)
             yarns.append(_crown_yarn(textile, yarn, s0, s1, spacing, f"{yarn.name} crown {k}"))
             pieces.append([s0, s1])
         tension = [_leg_force(textile, yarn, a[1], b[0]) for a, b in zip(pieces, pieces[1:] + [
@@ -120,6 +121,27 @@ def split_steep(textile: Textile, spacing: float) -> Split:
     plate = Textile(textile.cell, yarns, name=f"{textile.name}_plates" if cut else textile.name,
                     resolution=textile.resolution, tiling=None if cut else textile.tiling)
     return Split(textile, plate, tuple(crowns))
+
+
+def _clear_of_sides(textile: Textile, yarn: Yarn, s0: float, s1: float, margin: float) -> tuple[float, float]:
+    """The crown [s0, s1] shortened, where an end lies within `margin` of a cell side (in plan),
+    until it does not: a plate's end that close to a side meets the side on one copy of the cell
+    and not on the other (gmsh merges what lies within its tolerance), and a sliver of plate with
+    nothing around it remains. The leg takes the stretch."""
+    cell = textile.cell
+    if not cell.periodic:
+        return s0, s1
+    s = np.linspace(s0, s1, 400)
+    xy = _path(yarn, s)[0][:, :2]
+    near = np.zeros(len(s), bool)
+    for axis, lo, length in ((0, cell.bounds[0], cell.lx), (1, cell.bounds[2], cell.ly)):
+        rel = np.mod(xy[:, axis] - lo, length)
+        near |= (rel < margin) | (length - rel < margin)
+    clear = np.flatnonzero(~near)
+    if len(clear) == 0 or not (near[0] or near[-1]):
+        return s0, s1
+    first, last = (clear[0] if near[0] else 0), (clear[-1] if near[-1] else len(s) - 1)
+    return float(s[first]), float(s[last])
 
 
 def _crown_yarn(textile: Textile, yarn: Yarn, s0: float, s1: float, spacing: float, name: str) -> Yarn:

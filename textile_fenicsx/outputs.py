@@ -90,7 +90,9 @@ def metrics_document(run) -> dict:
                                                          ("volume", "max_depth", "at", "pairs")})
                              for k, v in (("before", before), ("after", m["after"]))},
         "thickness": pick("thickness"), "crimp": pick("crimp"), "yarn_volume": pick("yarn_volume"),
-        "yarn_volume_change": m.get("yarn_volume_change"), "section_area_change": m.get("section_area_change"),
+        "yarn_volume_change": m.get("yarn_volume_change"),
+        "yarn_volume_per_length_change": m.get("yarn_volume_per_length_change"),
+        "section_area_change": m.get("section_area_change"),
         "vf": pick("vf"),
         "dofs": summary["dofs"], "cells": summary["cells"], "iterations": summary["iterations"],
         "converged": summary["converged"], "reason": summary["reason"],
@@ -131,10 +133,11 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool) -> Path:
             log.info("outputs: mid-surface fields")
             write_fields(run, tmp / "fields")
         if comm.rank == 0 and (surfaces or figures):
-            from textile_fenicsx.surfaces import YarnSurfaces
+            from textile_fenicsx.surfaces import EXPORT, YarnSurfaces
 
             log.info("outputs: surfaces")
-            built = {name: YarnSurfaces.build(t) for name, t in (("before", run.textile), ("after", corrected))}
+            built = {name: YarnSurfaces.build(t, resolution=EXPORT)
+                     for name, t in (("before", run.textile), ("after", corrected))}
             for name, surf in built.items():
                 if surf.open_yarns:
                     log.warning("outputs: the clipped surfaces of yarns %s (%s) could not be closed; written open",
@@ -143,13 +146,15 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool) -> Path:
                     surf.write(tmp / f"surfaces_{name}.vtu")
                     surf.write(tmp / f"surfaces_{name}.stl")
             if figures:
-                from textile_fenicsx.plotting import plot_cross_sections, plot_textile
+                from textile_fenicsx.plotting import offscreen, plot_cross_sections, plot_textile
 
                 log.info("outputs: figures")
-                with naming(tmp / "view_before.png"):
-                    plot_textile(run.textile, built["before"], tmp / "view_before.png", f"{run.textile.name}: before")
-                with naming(tmp / "view_after.png"):
-                    plot_textile(corrected, built["after"], tmp / "view_after.png", f"{run.textile.name}: after")
+                with offscreen():  # one X server for both views
+                    with naming(tmp / "view_before.png"):
+                        plot_textile(run.textile, built["before"], tmp / "view_before.png",
+                                     f"{run.textile.name}: before")
+                    with naming(tmp / "view_after.png"):
+                        plot_textile(corrected, built["after"], tmp / "view_after.png", f"{run.textile.name}: after")
                 with naming(tmp / "cross_sections.png"):
                     plot_cross_sections(run.textile, corrected, tmp / "cross_sections.png", cut_lines(run.textile))
         metrics["time_s"]["outputs"] = time.perf_counter() - t0

@@ -17,9 +17,15 @@ from pathlib import Path
 import numpy as np
 
 from textile_fenicsx.files import atomic_path
-from textile_fenicsx.textile import Textile
+from textile_fenicsx.textile import Resolution, Textile
 
-__all__ = ["YarnSurfaces", "clip_closed", "is_closed"]
+# The resolution of the surfaces a run writes and draws (STL, VTU, pictures): stations 0.25 mm
+# apart (at least one per master node), 32 points a section (0.6 % of a section's area); the
+# metrics use the models' own, finer ones.
+EXPORT = Resolution(spacing=0.25, section_points=32, per_segment=1)
+
+__all__ = ["EXPORT", "YarnSurfaces", "clip_closed", "is_closed"]
+
 
 
 @dataclass
@@ -33,8 +39,11 @@ class YarnSurfaces:
     open_yarns: list = field(default_factory=list)
 
     @classmethod
-    def build(cls, textile: Textile, clip: bool = True) -> "YarnSurfaces":
-        """The textile's yarn surfaces, clipped to its cell (and z range) when `clip`."""
+    def build(cls, textile: Textile, clip: bool = True, resolution=None) -> "YarnSurfaces":
+        """The textile's yarn surfaces, clipped to its cell (and z range) when `clip`; at the
+        textile's own resolution, or at `resolution` (textile.Resolution)."""
+        if resolution is not None:
+            textile = Textile(textile.cell, textile.yarns, textile.name, resolution, textile.tiling)
         planes = _cell_planes(textile) if clip else []
         points, triangles, yarn, open_yarns, offset = [], [], [], [], 0
         for i in range(len(textile.yarns)):

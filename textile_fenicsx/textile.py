@@ -82,16 +82,19 @@ class Cell:
 
 @dataclass(frozen=True)
 class Resolution:
-    """How finely yarn surfaces are discretised: station spacing along the yarn [mm] and points
-    per section polygon (64 points: section area within 0.16 % of the smooth curve)."""
+    """How finely yarn surfaces are discretised: station spacing along the yarn [mm], points
+    per section polygon (64 points: section area within 0.16 % of the smooth curve) and the fewest
+    stations between two master nodes (1 for a corrected yarn, whose master nodes are stations)."""
 
     spacing: float = 0.1
     section_points: int = 64
+    per_segment: int = 4
 
     def __post_init__(self):
         limits.check_length("resolution spacing", self.spacing)
         limits.check_count("resolution section_points", self.section_points, limits.MIN_SECTION_POINTS,
                            limits.MAX_SECTION_POINTS)
+        limits.check_count("resolution per_segment", self.per_segment, 1, 64)
 
 
 @dataclass
@@ -211,7 +214,7 @@ class Textile:
             if box is not None:
                 x0, x1, y0, y1 = min(x0, box[0]), max(x1, box[1]), min(y0, box[2]), max(y1, box[3])
             yarn = self.yarns[i]
-            verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
+            verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points, self.resolution.per_segment)
             one = _tube_triangles(verts, closed_ends=not yarn.periodic)
             lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
             pad = 1e-6 * max(self.cell.lx, self.cell.ly)
@@ -292,7 +295,7 @@ class Textile:
         periodic yarn's copies along its own period are chained into one long capped tube per
         lateral shift (surfaces.YarnSurfaces clips them to the cell)."""
         yarn = self.yarns[i]
-        verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points)
+        verts, _ = yarn.tube(self.resolution.spacing, self.resolution.section_points, self.resolution.per_segment)
         lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
         if not yarn.periodic:  # a piece: its copies by the repeats (none with free edges)
             return [_closed_tube(verts + t) for t in self._translations(yarn, lo, hi)]

@@ -64,11 +64,13 @@ def self_intersecting(polygons: np.ndarray) -> np.ndarray:
 
 
 def _sections(textile: Textile, i: int) -> np.ndarray | None:
-    """The corrected yarn's per-station polygons (S, n, 2), or None when it has no polygon sections."""
-    sections = textile.yarns[i].section.sections()
+    """The corrected yarn's polygons (S, n, 2) at its stations (its master nodes, blended where
+    the file keeps fewer), or None when it has no polygon sections."""
+    yarn = textile.yarns[i]
+    sections = yarn.section.sections()
     if not all(isinstance(s, Polygon) for s in sections) or len({len(s.vertices) for s in sections}) != 1:
         return None
-    return np.array([s.vertices for s in sections])
+    return yarn.section_points(np.arange(len(yarn.nodes), dtype=float), len(sections[0].vertices))
 
 
 def _has_legs(yarn) -> bool:

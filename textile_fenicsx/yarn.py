@@ -276,13 +276,13 @@ class Yarn:
         u = np.where(span > 0, (frac - ext_pos[j]) / np.where(span > 0, span, 1), 0.0)
         return blend(ext_pts[j], ext_pts[j + 1], u, sec.ramped, sec.polar)
 
-    def tube(self, spacing: float, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    def tube(self, spacing: float, n_points: int, per_segment: int = 4) -> tuple[np.ndarray, np.ndarray]:
         """The yarn's surface over its master nodes as a structured grid.
 
         Returns (vertices (M, n_points, 3), stations s (M,)): vertex [m, k] is section point k at
         station m. For a periodic yarn the last station repeats the first, shifted by the period.
         """
-        s = self.stations(spacing)
+        s = self.stations(spacing, per_segment)
         pos, _, up, side = self.frames(s)
         sec = self.section_points(s, n_points)
         verts = pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]

@@ -40,7 +40,7 @@ GRADIENT_RTOL = 1e-10
 # factorisation's pivots lose their meaning)
 START_RATIO = 1e-3
 FRACTION_TO_BOUNDARY = 0.995
-MAX_WEIGHT = 1e8
+MAX_WEIGHT = 1e6
 # a warm start (from a related problem's solution) keeps its slacks at least this far from 0 [mm]
 WARM_GAP = 1e-5
 # steps in a row that move nothing while nodes still penetrate: the constraints cannot all hold

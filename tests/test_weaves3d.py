@@ -1,0 +1,59 @@
+"""TexGen's 3D weaves end to end with the default command (issue 14): orthogonal with vertical
+binders, layer-to-layer and angle interlock, built by TexGen's own classes (reference/)."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from conftest import REPO
+from textile_fenicsx.config import load_model
+from textile_fenicsx.legs import split_steep
+from textile_fenicsx.meshes.projected import MeshOptions
+from textile_fenicsx.pipeline import Settings, run
+
+MODELS = {"ortho": REPO / "reference" / "models" / "ortho.tg3",
+          "layer-to-layer": REPO / "reference" / "fabrics" / "l2l_w2f3_b3_0011.tg3",
+          "angle interlock": REPO / "reference" / "fabrics" / "angleinterlock_w2f3_y6.tg3"}
+
+
+@pytest.mark.serial
+def test_vertical_binder_is_cut_into_crowns_and_legs():
+    # TexGen's orthogonal binder: 4 crowns per period (2 over the top wefts, 2 under the bottom
+    # ones), the legs between them carry the tension: down from a top crown's ends, up from a
+    # bottom crown's, sigma1 x width each (1.375 mm)
+    t = load_model(MODELS["ortho"])
+    split = split_steep(t, 0.25)
+    binder = [c for c in split.crowns if not c.whole and c.yarn == 2]
+    assert len(binder) == 4
+    tops = [c for c, y in zip(split.crowns, split.plate.yarns) if not c.whole and c.yarn == 2 and y.nodes[0, 2] > 1]
+    assert len(tops) == 2
+    for c in tops:
+        assert c.load_start == pytest.approx(-1.375) and c.load_end == pytest.approx(-1.375)
+    assert all(abs(c.load_start) == pytest.approx(1.375) for c in binder)
+    # crowns are not steep: the plates accept them
+    for c, y in zip(split.crowns, split.plate.yarns):
+        if not c.whole:
+            _, tan = y.centreline(np.linspace(0, y.n_segments, 200))
+            assert np.all(np.abs(tan[:, 2]) <= 3.0 * np.linalg.norm(tan[:, :2], axis=1) + 1e-9)
+
+
+@pytest.mark.mpi
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(MODELS))
+def test_texgen_3d_weave_solves_and_passes_its_check(name):
+    t = load_model(MODELS[name])
+    r = run(t, Settings(MeshOptions(0.5)), comm=MPI.COMM_WORLD)
+    assert r.converged, r.solution.reason
+    m = r.metrics
+    assert m["verdict"]["passed"], m["verdict"]["failures"]
+    before, after = m["before"], m["after"]
+    assert after["interpenetration"]["volume"] <= 0.01 * before["interpenetration"]["volume"]
+    h_min = min(s.height for y in t.yarns for s in y.section.sections())
+    assert after["interpenetration"]["max_depth"] <= 0.01 * h_min
+    # the orthogonal binders' tension compacts the stack (1.920 -> 1.70 mm); a layer-to-layer or
+    # angle-interlock binder, under one weft column and over the next, pushes the first up and the
+    # second down as its tension straightens it (no pressure holds the cell's faces), so their
+    # thickness, highest top minus lowest bottom, grows (measured 1.922 -> 2.24 and 1.920 -> 2.01
+    # mm): a guard against more than that
+    limit = 1.0 if name == "ortho" else 1.2
+    assert after["thickness"] <= limit * before["thickness"]
