@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi bench clean
+.PHONY: help env demo demos test test-serial test-mpi bench sweep clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -14,6 +14,7 @@ help:
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
+	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
 	@echo "make env          build (or check) the FEniCSx 0.9 environment only"
 	@echo "make clean        remove $(OUT)/"
 
@@ -30,7 +31,7 @@ demos:
 test: test-serial test-mpi
 
 test-serial:
-	$(ENV) $(PYTEST) tests
+	$(ENV) $(PYTEST) -m "not sweep" tests
 
 test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
@@ -38,6 +39,9 @@ test-mpi:
 bench:
 	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
 	$(ENV) env TEXTILE_FENICSX_TEXGEN_PYTHON=$$texgen python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
+
+sweep:
+	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json
 
 clean:
 	rm -rf $(OUT)
