@@ -290,21 +290,9 @@ def load_model(path) -> Textile:
         raise FormatError(f"{path}: nested too deeply") from None
 
 
-def _rounded(value):
-    """The JSON-ready value with every float rounded to 10 significant digits."""
-    if isinstance(value, float):
-        return float(f"{value:.10g}")
-    if isinstance(value, dict):
-        return {k: _rounded(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_rounded(v) for v in value]
-    return value
-
-
 def save_model(textile: Textile, path) -> Path:
-    """Write the textile in our JSON format, atomically (numbers to 10 significant digits, lists
-    on one line)."""
-    text = json.dumps(_rounded(textile_to_dict(textile)), separators=(",", ":"))
+    """Write the textile in our JSON format, atomically (numbers that read back exactly, compact)."""
+    text = json.dumps(textile_to_dict(textile), separators=(",", ":"))
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)

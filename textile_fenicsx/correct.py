@@ -116,9 +116,12 @@ class _Crowns:
         return out
 
 
-def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32) -> Yarn:
+def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32,
+                   section_tol: float | None = None) -> Yarn:
     """Yarn i moved by its displacement: w, a Function on its mid-surface (or, for a yarn cut
-    into crowns, a _Crowns of their Functions)."""
+    into crowns, a _Crowns of their Functions). Its sections are kept where the blend of their
+    neighbours misses them by more than section_tol [mm] (default SECTION_TOL of the height;
+    0 keeps every station's)."""
     yarn = textile.yarns[i]
     w = w if isinstance(w, _Crowns) else _Whole(w, textile.cell)
     s = yarn.stations(spacing)
@@ -161,7 +164,8 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     ratio = (_areas(u0, v0) / _areas(u0, v_new))[:, None]
     u_new, v_new = u0 * np.minimum(1.0, ratio), v_new * np.maximum(1.0, ratio)
     polys = np.stack((u_new, v_new), axis=-1)
-    return Yarn(new_pos, sparse_sections(new_pos, polys, yarn.periodic, SECTION_TOL * _heights(polys).min()),
+    tol = SECTION_TOL * _heights(polys).min() if section_tol is None else section_tol
+    return Yarn(new_pos, sparse_sections(new_pos, polys, yarn.periodic, tol),
                 "cubic", yarn.periodic, yarn.repeats, ups=ups, name=yarn.name, fibres=yarn.fibres)
 
 

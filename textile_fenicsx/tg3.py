@@ -270,9 +270,9 @@ def read_tg3(path, textile: str | None = None) -> Textile:
 # --- writing ----------------------------------------------------------------------------------
 
 def _num(v) -> str:
-    """Numbers as TexGen writes them, to 10 significant digits (1e-9 of a length: far below any
-    tolerance of a model in mm, and half the file of full precision)."""
-    return ", ".join(f"{float(x):.10g}" for x in np.atleast_1d(v))
+    """Numbers as TexGen writes them, each in the shortest form that reads back to the same double
+    (a model written and read again is identical)."""
+    return ", ".join(repr(float(x)) for x in np.atleast_1d(v))
 
 
 def _section_element(parent, sec: Section, n_points: int):

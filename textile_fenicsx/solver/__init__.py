@@ -43,8 +43,7 @@ def solve_problem(problem: ContactProblem, start: Solution | None = None) -> Sol
     finally:
         problem.destroy()
         release_freed_memory()  # MUMPS' factors back to the system before the outputs are made
-    log.info("contact: %s (%d Newton steps, %d multiplier updates, %d factorisations)", out.reason, out.iterations,
-             out.updates, factorisations)
+    log.info("contact: %s (%d Newton steps, %d factorisations)", out.reason, out.iterations, factorisations)
     return Solution(w=w, gap=gap, contact=contact, iterations=out.iterations, updates=out.updates,
                     history=out.history, max_penetration=pen, penetration_volume=volume, converged=out.converged,
                     reason=out.reason, times={"solve": time.perf_counter() - t0}, unknowns=unknowns)

@@ -17,17 +17,16 @@ DIRECT_LU = {
     "pc_factor_mat_solver_type": "mumps",
 }
 
-# The contact problem's matrix is symmetric (plates, contact, the pinning multiplier): MUMPS'
-# symmetric-indefinite LDL^T stores half the factor and factorises ~15 % faster than LU.
-# ICNTL(24): detect null pivots, so a singular system (a yarn held by nothing) is reported, not
-# solved quietly. ICNTL(13) = 1: no ScaLAPACK on the root front, so that INFOG(12), the number of
-# negative pivots (the inertia), is exact on any number of ranks: the convex energy's matrix has
-# exactly one, from the multiplier that pins the common translation. ICNTL(7) = 2, AMF ordering:
-# Debian's MUMPS has no METIS/SCOTCH and its automatic choice is PORD; on a 3.3e5-dof satin
-# coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s. ICNTL(14) = 100: room for
-# 100 % more factor than the analysis predicts (20 % by default): the interior point's weights
-# change the pivots' order of magnitude from step to step, and delayed pivots of an indefinite
-# LDL^T need the room (without it MUMPS can stop with INFOG(1) = -9 on 2 ranks).
+# The contact problem's matrix is symmetric (plates, contact) and, with one unknown pinned,
+# positive definite: the problem flags it SPD and MUMPS factorises it as LDL^T without pivoting
+# (SYM = 1), which keeps the analysis' prediction of the factor exact however the interior point's
+# weights scale the pivots, stores half the factor, and is ~15 % faster than LU. Other symmetric
+# matrices get the symmetric-indefinite LDL^T (SYM = 2). ICNTL(24): detect null pivots, so a
+# singular system (a yarn held by nothing) is reported, not solved quietly. ICNTL(13) = 1: no
+# ScaLAPACK on the root front, so that INFOG(12), the number of negative pivots (the inertia), is
+# exact on any number of ranks: a convex energy's matrix has none (MUMPS counts them with SYM = 1
+# too). ICNTL(7) = 2, AMF ordering: Debian's MUMPS has no METIS/SCOTCH and its automatic choice is
+# PORD; on a 3.3e5-dof satin coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s.
 DIRECT_LDLT = {
     "ksp_type": "preonly",
     "pc_type": "cholesky",
@@ -35,7 +34,6 @@ DIRECT_LDLT = {
     "mat_mumps_icntl_7": 2,
     "mat_mumps_icntl_13": 1,
     "mat_mumps_icntl_24": 1,
-    "mat_mumps_icntl_14": 100,
 }
 
 _serial = itertools.count()

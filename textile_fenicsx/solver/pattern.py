@@ -69,9 +69,16 @@ class FixedPattern:
         A.assemble()
         return A
 
-    def fill(self, A: PETSc.Mat, variable: np.ndarray | None) -> None:
-        """Put constant + variable values into A (made by `matrix`)."""
-        A.setValuesCSR(self.indptr, self.indices, self.values(variable), addv=PETSc.InsertMode.INSERT_VALUES)
+    def fill(self, A: PETSc.Mat, variable: np.ndarray | None, pin: int | None = None) -> None:
+        """Put constant + variable values into A (made by `matrix`); with `pin`, that unknown's row
+        and column are those of the identity (the unknown keeps its value: a Dirichlet condition
+        that leaves the matrix symmetric)."""
+        values = self.values(variable)
+        if pin is not None:
+            rows = self.start + np.repeat(np.arange(self.n_local), np.diff(self.indptr))
+            values[(rows == pin) | (self.indices == pin)] = 0.0
+            values[(rows == pin) & (self.indices == pin)] = 1.0
+        A.setValuesCSR(self.indptr, self.indices, values, addv=PETSc.InsertMode.INSERT_VALUES)
         A.assemble()
 
     def _csr(self, rows, cols, vals) -> scipy.sparse.csr_matrix:

@@ -4,7 +4,6 @@
 ghost strip is a slave of its image inside the cell; `unknown(i, parent_dofs)` resolves slaves to
 their masters and returns the unknowns' global indices, and `yarn_map(y)` is the sparse map R_i
 (yarn dofs -> unknowns, one 1 per row) that the plates are reduced with: K = sum R_i^T A_i R_i.
-The last unknown, owned by the last rank, is the multiplier that removes the common translation.
 """
 
 import numpy as np
@@ -19,8 +18,8 @@ __all__ = ["Periodicity", "seam_facet_tags"]
 
 
 class Periodicity:
-    """Global numbering of the unknowns: per rank, per yarn, the owned master dofs; then one
-    multiplier. Frozen once built; every rank can look up any yarn dof's unknown."""
+    """Global numbering of the unknowns: per rank, per yarn, the owned master dofs. Frozen once
+    built; every rank can look up any yarn dof's unknown."""
 
     def __init__(self, ms: MidSurfaces):
         V, comm = ms.V, ms.V.mesh.comm
@@ -40,8 +39,7 @@ class Periodicity:
         n_local = int(sum(len(m) for m in masters))
         self.start = comm.exscan(n_local) or 0
         self.n = comm.allreduce(n_local, op=MPI.SUM)
-        self.multiplier = self.n
-        self.n_local = n_local + (1 if comm.rank == comm.size - 1 else 0)
+        self.n_local = n_local
         # parent global dof -> unknown, per yarn, known on every rank (gathered once)
         pos, mine = self.start, []
         for m in masters:
@@ -103,8 +101,8 @@ class Periodicity:
             vec.destroy()
 
     def vector(self) -> PETSc.Vec:
-        """A zero vector over the unknowns (and the multiplier)."""
-        v = PETSc.Vec().createMPI((self.n_local, self.n + 1), comm=self.comm)
+        """A zero vector over the unknowns."""
+        v = PETSc.Vec().createMPI((self.n_local, self.n), comm=self.comm)
         v.set(0.0)
         return v
 
@@ -112,7 +110,7 @@ class Periodicity:
         """R: yarn y's dofs (owned rows) -> unknowns, one 1 per row."""
         imap = y.V.dofmap.index_map
         cols = self.yarn_unknowns(y, np.arange(imap.size_local, dtype=np.int32))  # owned rows in order
-        R = PETSc.Mat().createAIJ(((imap.size_local, imap.size_global), (self.n_local, self.n + 1)), comm=self.comm)
+        R = PETSc.Mat().createAIJ(((imap.size_local, imap.size_global), (self.n_local, self.n)), comm=self.comm)
         indptr = np.arange(imap.size_local + 1, dtype=PETSc.IntType)
         R.setPreallocationCSR((indptr, cols.astype(PETSc.IntType), np.ones(len(cols), PETSc.ScalarType)))
         R.assemble()

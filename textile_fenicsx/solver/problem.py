@@ -1,11 +1,15 @@
 """The assembled problem: plates, the pinned translation and the contact pairs over the unknowns.
 
-Energy (DESIGN.md 5), with x the unknowns (and one multiplier):
+Energy (DESIGN.md 5), with x the unknowns:
     E(x) = 1/2 x^T K0 x - b0^T x + sum_pairs E_c(g_p),   g_p = g0_p + T_p x,
 K0 the plates (each yarn's bending + tension on its submesh, reduced by the periodic map R_i:
-K0 = sum R_i^T A_i R_i) and the pin, b0 their restoring force -A_i z0_i (and any load), E_c the
+K0 = sum R_i^T A_i R_i), b0 their restoring force -A_i z0_i (and any load), E_c the
 contact energy of forms/contact.py. For the exact method E_c is quadratic (the apart spring) and
 joins the fixed part: K_fixed = K0 + sum T^T J T, b_fixed = b0 - sum T^T J g0.
+E does not change when every yarn rises by the same amount (without a foundation): the Newton
+matrices pin one unknown instead, so that they are symmetric positive definite (MUMPS' Cholesky
+without pivoting, whatever the interior point's weights), and the solution is shifted to zero
+mean afterwards.
 `ContactProblem` owns the PETSc objects it makes (K, K_fixed, vectors, the direct solver) and
 frees them in `destroy()`.
 """
@@ -79,7 +83,7 @@ class ContactProblem:
         self.numbering = numbering = Periodicity(ms)
         pattern = FixedPattern(self.comm, numbering.start, numbering.n_local)
         self.R, self.b_fixed = assemble_plates(ms, numbering, pattern, params, loads or {}, foundation_stiffness)
-        self._pin_translation(pattern, foundation_stiffness)
+        self._translation(foundation_stiffness)
         self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact)
         self.nodes = contact_nodes(self.pairs, need, numbering.image_dofs(ms)) if self.exact else None
         if self.nodes is not None:
@@ -95,16 +99,14 @@ class ContactProblem:
             self._spring = [jacobian_values(p, g) for p, g in zip(self.pairs, g0)]
             pattern.fill(self.K_fixed, self._variable(self._spring, 0.0))
             self._add_contact(self.b_fixed, [-residual_values(p, g) for p, g in zip(self.pairs, g0)])
-        self.expected_negative_pivots = 1 if self.free_translation else 0
         self.solver = DirectSolver(self.comm, options.petsc)
         self.factorisations = 0
 
-    def _pin_translation(self, pattern: FixedPattern, kf: float) -> None:
-        """The common vertical translation (the energy's null space when there is no foundation).
-        Equivalent to a multiplier on the area-weighted mean of all w, but sparse: the net load is
-        spread over the area as that multiplier's reaction would be, one unknown is pinned through
-        the multiplier's row, and the solution is shifted to zero mean afterwards (a dense row made
-        MUMPS' analysis take minutes on coupons). With a foundation the multiplier row is 1."""
+    def _translation(self, kf: float) -> None:
+        """The common vertical translation, the energy's null space when there is no foundation:
+        the net load is spread over the area (the reaction a constraint on the area-weighted mean
+        of w would give), unknown 0 is pinned in every Newton matrix (`pin`), and `displacements`
+        shifts the solution to zero mean."""
         m = self.numbering.vector()
         for y, R in zip(self.ms.yarns, self.R):
             mi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(ufl.TestFunction(y.V) * y.dx))
@@ -113,12 +115,9 @@ class ContactProblem:
             mi.destroy()
         self.area_weights, self.area = m, m.sum()
         self.free_translation = not kf
-        mult = self.numbering.multiplier
+        self.pin = 0 if self.free_translation else None
         if self.free_translation:
             self.b_fixed.axpy(-self.b_fixed.sum() / self.area, m)
-        entries = ([(0, mult), (mult, 0)] if self.free_translation else [(mult, mult)]) if self.comm.rank == 0 else []
-        pattern.add_fixed(np.array([e[0] for e in entries], np.int64), np.array([e[1] for e in entries], np.int64),
-                          np.ones(len(entries)))
 
     def _variable(self, jacobians: list[np.ndarray], c) -> np.ndarray:
         """Variable values in the pattern's order: the pairs' Jacobian entries, then the nodes'."""
@@ -178,15 +177,20 @@ class ContactProblem:
         """K = K0 + the contact Jacobian (the spring, or the penalty's at gaps g) + C^T diag(c_nodes) C,
         factorised."""
         jac = self._spring if self.exact else [jacobian_values(p, gp) for p, gp in zip(self.pairs, g)]
-        self.pattern.fill(self.K, self._variable(jac, c_nodes))
+        self.pattern.fill(self.K, self._variable(jac, c_nodes), pin=self.pin)
+        self.K.setOption(PETSc.Mat.Option.SPD, True)  # pinned: MUMPS' SPD LDL^T (SYM = 1); new values reset it
         self.solver.factor(self.K)
         self.factorisations += 1
         return self.K
 
     def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, what: str) -> None:
         """x = K^-1 rhs with K's last factorisation (newton_matrix), checked: converged, finite, no
-        null pivots, and the inertia of a convex energy (one negative pivot, the pinning
-        multiplier's, or none with a foundation)."""
+        null pivots, and the inertia of a convex energy (no negative pivot). The pinned unknown
+        does not move (its entry of rhs is set to 0)."""
+        if self.pin is not None:
+            first, end = rhs.getOwnershipRange()
+            if first <= self.pin < end:
+                rhs.getArray()[self.pin - first] = 0.0
         self.solver.solve(rhs, x)
         ksp = self.solver.ksp
         reason, nulls, negative = ksp.getConvergedReason(), null_pivots(ksp), negative_pivots(ksp)
@@ -196,9 +200,9 @@ class ContactProblem:
             mumps = mumps_error(ksp)
             raise SolverError(f"the linear system is singular at {what} (PETSc reason {reason}, {nulls} null "
                               f"pivots{', ' + mumps if mumps else ''}): {hint}")
-        if negative >= 0 and negative != self.expected_negative_pivots:
+        if negative > 0:
             raise SolverError(f"the energy is not convex at {what}: its matrix has {negative} negative pivots where "
-                              f"{self.expected_negative_pivots} is expected (a mesh the bending penalty cannot hold?)")
+                              "none is expected (a mesh the bending penalty cannot hold?)")
         if not np.isfinite(x.norm()):
             raise SolverError(f"the solution is not finite (NaN or Inf) at {what}")
 
@@ -216,12 +220,7 @@ class ContactProblem:
     def displacements(self, x: PETSc.Vec) -> list[dolfinx.fem.Function]:
         """Per yarn w = R_i x, after the common translation is set to zero area-weighted mean."""
         if self.free_translation:
-            ones = x.duplicate()
-            ones.set(1.0)
-            ones.setValue(self.numbering.multiplier, 0.0)
-            ones.assemble()
-            x.axpy(-self.area_weights.dot(x) / self.area, ones)
-            ones.destroy()
+            x.shift(-self.area_weights.dot(x) / self.area)
         w = []
         for y, R in zip(self.ms.yarns, self.R):
             w.append(dolfinx.fem.Function(y.V, name="w"))
