@@ -194,12 +194,15 @@ class ContactProblem:
         self.solver.solve(rhs, x)
         ksp = self.solver.ksp
         reason, nulls, negative = ksp.getConvergedReason(), null_pivots(ksp), negative_pivots(ksp)
-        if reason <= 0 or nulls > 0:
+        # a semi-definite matrix (Et = 0: a yarn touching nothing is held by nothing) factorised
+        # without pivoting meets its null space as a pivot of round-off size and either sign
+        held_by_nothing = self.params.Et == 0 and negative > 0
+        if reason <= 0 or nulls > 0 or held_by_nothing:
             hint = ("with Et = 0 a yarn that touches no other yarn is held by nothing: give Et > 0"
                     if self.params.Et == 0 else "check the stiffnesses (Db1, Db2, sigma1) for zeros")
             mumps = mumps_error(ksp)
             raise SolverError(f"the linear system is singular at {what} (PETSc reason {reason}, {nulls} null "
-                              f"pivots{', ' + mumps if mumps else ''}): {hint}")
+                              f"pivots, {negative} negative{', ' + mumps if mumps else ''}): {hint}")
         if negative > 0:
             raise SolverError(f"the energy is not convex at {what}: its matrix has {negative} negative pivots where "
                               "none is expected (a mesh the bending penalty cannot hold?)")
