@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi bench clean
+.PHONY: help env demo demos test test-serial test-mpi docker-test bench clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -14,6 +14,9 @@ help:
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
+	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
+	@echo "                  2 ranks) in the image as a non-root user and compare them with bin/fenicsx-env's, run"
+	@echo "                  the tests in the image; as root (about 5 min cold + 7 min of tests); $(OUT)/docker-test/"
 	@echo "make env          build (or check) the FEniCSx 0.9 environment only"
 	@echo "make clean        remove $(OUT)/"
 
@@ -34,6 +37,9 @@ test-serial:
 
 test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
+
+docker-test:
+	bin/docker-test $(OUT)/docker-test
 
 bench:
 	$(ENV) python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
