@@ -16,7 +16,7 @@ help:
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
 	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
 	@echo "                  2 ranks) in the image as a non-root user and compare them with bin/fenicsx-env's, run"
-	@echo "                  the tests in the image; as root (about 5 min cold + 7 min of tests); $(OUT)/docker-test/"
+	@echo "                  the tests in the image; as root; about 10 min (13 cold); $(OUT)/docker-test/"
 	@echo "make env          build (or check) the FEniCSx 0.9 environment only"
 	@echo "make clean        remove $(OUT)/"
 
