@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi bench sweep clean
+.PHONY: help env demo demos test test-serial test-mpi docker-test bench sweep clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -15,6 +15,9 @@ help:
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
+	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
+	@echo "                  2 ranks) in the image as a non-root user and compare them with bin/fenicsx-env's, run"
+	@echo "                  the tests in the image; as root; about 10 min (13 cold); $(OUT)/docker-test/"
 	@echo "make env          build (or check) the FEniCSx 0.9 environment only"
 	@echo "make clean        remove $(OUT)/"
 
@@ -35,6 +38,9 @@ test-serial:
 
 test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
+
+docker-test:
+	bin/docker-test $(OUT)/docker-test
 
 bench:
 	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
