@@ -170,6 +170,17 @@ def test_singular_system_says_why():
 
 
 @pytest.mark.mpi
+def test_energy_that_is_not_convex_is_refused():
+    # a C0IP penalty far below its coercivity bound (alpha 0.01 against the default 3) makes the
+    # plates' matrix indefinite: dozens of negative pivots (MUMPS INFOG(12)), refused at once
+    # (round-off in a nearly singular matrix gives one or two, which are let through)
+    t = Textile(Cell(4, 4), [strip(z=0.0, name="low"), strip(z=0.2, along_x=False, name="high")])
+    ms = mid_surfaces(projected_mesh(t, MeshOptions(0.5)))
+    with pytest.raises(SolverError, match=r"not convex at contact iteration 1: its matrix has \d\d+ negative pivots"):
+        solve(ms, PlateParameters(alpha=0.01), SolverOptions())
+
+
+@pytest.mark.mpi
 def test_non_finite_solution_is_caught():
     t = Textile(Cell(4, 4), [strip(z=0.0, name="low"), strip(z=0.2, along_x=False, name="high")])
     ms = mid_surfaces(projected_mesh(t, MeshOptions(0.5)))
