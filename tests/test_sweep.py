@@ -14,6 +14,7 @@ import sweep  # noqa: E402
 
 
 @pytest.mark.sweep
+@pytest.mark.slow
 @pytest.mark.serial
 @pytest.mark.parametrize("name", sweep.cases())
 def test_default_command_on_the_fabric_family(name):
