@@ -34,7 +34,8 @@ RUN printf '%s\n' 'path-exclude=/usr/share/doc/*' 'path-include=/usr/share/doc/*
  && install -d -m 1777 "$HOME" /tmp/.X11-unix
 
 # The repository (.dockerignore lets in the tracked files only) and the package, built from a copy
-# so that /work gets no build/ or *.egg-info. The check imports the stack and the installed package.
+# so that /work gets no build/ or *.egg-info. The check imports the stack, and every module of the
+# source tree from the installed package (bin/check-install).
 WORKDIR /work
 COPY . /work
 RUN cp -r /work /tmp/src \
@@ -42,10 +43,11 @@ RUN cp -r /work /tmp/src \
         --root-user-action=ignore /tmp/src \
  && rm -rf /tmp/src \
  && cd / \
- && python3 -c "import dolfinx, dolfinx_mpc, textile_fenicsx, textile_fenicsx.forms, textile_fenicsx.meshes; \
+ && python3 -c "import dolfinx, dolfinx_mpc, textile_fenicsx; \
 assert dolfinx.__version__.startswith('0.9.'), dolfinx.__version__; \
 assert textile_fenicsx.__file__.startswith('/usr/local/lib/'), textile_fenicsx.__file__; \
 print('build check: dolfinx', dolfinx.__version__, 'and dolfinx_mpc import;', textile_fenicsx.__file__)" \
+ && python3 /work/bin/check-install /work \
  && textile-fenicsx --version
 
 # tini runs as PID 1 and passes signals on: Ctrl-C and `docker stop` reach the job even while Python

@@ -170,7 +170,12 @@ def texgen_case(model: str, seed: float, timeout: float = 3600) -> dict:
     if proc.returncode != 0:
         print(f"bench: TexGen's solver failed: {proc.stderr.strip()[-300:]}", file=sys.stderr, flush=True)
         return {}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    try:
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        print(f"bench: TexGen's solver printed no result: {proc.stdout.strip()[-300:]!r} {proc.stderr.strip()[-300:]!r}",
+              file=sys.stderr, flush=True)
+        return {}
 
 
 def _run(cmd: list[str]) -> str:

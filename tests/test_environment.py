@@ -75,3 +75,23 @@ def test_mpi_world_matches_launcher():
     assert comm.size == expected
     assert comm.allreduce(comm.rank, op=MPI.SUM) == comm.size * (comm.size - 1) // 2
     assert sys.executable
+
+
+@pytest.mark.serial
+def test_installed_package_holds_every_module(tmp_path):
+    # pip installs the package as pyproject.toml lists it; every module of the source tree must
+    # then import from the installation (was: textile_fenicsx.solver missing, so the Docker image,
+    # which runs the installed package, failed at its first solve)
+    import shutil
+
+    source, target = tmp_path / "source", tmp_path / "site"  # a copy: no stale build/ of the clone's
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(".git", "build", "*.egg-info", "output",
+                                                                "__pycache__", "reference"))
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+                    "--break-system-packages", "--target", str(target), str(source)], check=True,
+                   capture_output=True, cwd=tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(target))
+    run = subprocess.run([sys.executable, str(REPO / "bin" / "check-install"), str(REPO)], env=env,
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert "modules import from the installation" in run.stdout
