@@ -171,8 +171,8 @@ def texgen_case(model: str, seed: float, timeout: float = 3600) -> dict:
         print(f"bench: TexGen's solver failed: {proc.stderr.strip()[-300:]}", file=sys.stderr, flush=True)
         return {}
     try:
-        return json.loads(proc.stdout.strip().splitlines()[-1])
-    except (IndexError, json.JSONDecodeError):
+        return json.loads(proc.stdout[proc.stdout.index("\n{") + 1 if not proc.stdout.startswith("{") else 0:])
+    except (ValueError, json.JSONDecodeError):  # bench/texgen.py prints its record last, indented
         print(f"bench: TexGen's solver printed no result: {proc.stdout.strip()[-300:]!r} {proc.stderr.strip()[-300:]!r}",
               file=sys.stderr, flush=True)
         return {}
