@@ -75,11 +75,20 @@ class FixedPattern:
         that leaves the matrix symmetric)."""
         values = self.values(variable)
         if pin is not None:
-            rows = self.start + np.repeat(np.arange(self.n_local), np.diff(self.indptr))
-            values[(rows == pin) | (self.indices == pin)] = 0.0
-            values[(rows == pin) & (self.indices == pin)] = 1.0
+            line, diagonal = self._pin_positions(pin)
+            values[line] = 0.0
+            values[diagonal] = 1.0
         A.setValuesCSR(self.indptr, self.indices, values, addv=PETSc.InsertMode.INSERT_VALUES)
         A.assemble()
+
+    def _pin_positions(self, pin: int) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (in the values' order) of row and column `pin`, and of its diagonal entry;
+        found once."""
+        if getattr(self, "_pin", (None,))[0] != pin:
+            rows = self.start + np.repeat(np.arange(self.n_local), np.diff(self.indptr))
+            line = np.flatnonzero((rows == pin) | (self.indices == pin))
+            self._pin = (pin, line, line[rows[line] == self.indices[line]])
+        return self._pin[1], self._pin[2]
 
     def _csr(self, rows, cols, vals) -> scipy.sparse.csr_matrix:
         """A local-rows CSR of owned-row triplets, repeated entries summed, zeros kept."""
