@@ -292,63 +292,56 @@ def set_3d_thickness(t0, t, calls):
     calls[-1] += "  # = default domain height / 1.1: TexGen leaves it uninitialised"
 
 
-def build_orthogonal(tc, s, calls):
+def start_3d(tc, s, cls, extra, signature, calls):
+    """A TexGen 3D weave of class cls (nX, nY, spacings, heights, *extra), recorded, with its warp and
+    binder ratios set: (the textile, its recorder)."""
     w, f = s["warp"], s["weft"]
-    args = (s["nx"], s["ny"], w["spacing"], f["spacing"], w["height"], f["height"], s["refine"])
-    t0 = tc.CTextileOrthogonal(*args)
-    calls.append(f"t = CTextileOrthogonal({', '.join(fmt(a) for a in args)})"
-                 "  # (nX, nY, xSpacing, ySpacing, xHeight, yHeight, bRefine)")
+    args = (s["nx"], s["ny"], w["spacing"], f["spacing"], w["height"], f["height"], *extra)
+    t0 = getattr(tc, cls)(*args)
+    calls.append(f"t = {cls}({', '.join(fmt(a) for a in args)})  # ({signature})")
     t = Recorder(t0, "t", calls)
     t.SetWarpRatio(s["warp_ratio"])
     t.SetBinderRatio(s["binder_ratio"])
+    return t0, t
+
+
+def finish_3d(t0, t, s, calls):
+    """Section powers, TexGen's default domain and the recorded fabric thickness."""
+    set_3d_powers(t, s)
+    t.AssignDefaultDomain()
+    set_3d_thickness(t0, t, calls)
+    return t0
+
+
+def build_orthogonal(tc, s, calls):
+    t0, t = start_3d(tc, s, "CTextileOrthogonal", (s["refine"],),
+                     "nX, nY, xSpacing, ySpacing, xHeight, yHeight, bRefine", calls)
     set_3d_sizes(t, s)
     t.SetupLayers(*s["layers"])
     t.SetGapSize(0.0)
     for cx, cy in s["binder_swaps"]:
         t.SwapBinderPosition(cx, cy)
-    set_3d_powers(t, s)
-    t.AssignDefaultDomain()
-    set_3d_thickness(t0, t, calls)
-    return t0
+    return finish_3d(t0, t, s, calls)
 
 
 def build_layertolayer(tc, s, calls):
-    w, f = s["warp"], s["weft"]
-    args = (s["nx"], s["ny"], w["spacing"], f["spacing"], w["height"], f["height"], s["binder_layers"])
-    t0 = tc.CTextileLayerToLayer(*args)
-    calls.append(f"t = CTextileLayerToLayer({', '.join(fmt(a) for a in args)})"
-                 "  # (nX, nY, xSpacing, ySpacing, xHeight, yHeight, nBinderLayers)")
-    t = Recorder(t0, "t", calls)
-    t.SetWarpRatio(s["warp_ratio"])
-    t.SetBinderRatio(s["binder_ratio"])
+    t0, t = start_3d(tc, s, "CTextileLayerToLayer", (s["binder_layers"],),
+                     "nX, nY, xSpacing, ySpacing, xHeight, yHeight, nBinderLayers", calls)
     t.SetupLayers(*s["layers"], s["binder_layers"])
     set_3d_sizes(t, s)
     for yarn, offsets in s["binder_offsets"].items():
         for col, off in enumerate(offsets):
             t.SetBinderPosition(col, yarn, off)
-    set_3d_powers(t, s)
-    t.AssignDefaultDomain()
-    set_3d_thickness(t0, t, calls)
-    return t0
+    return finish_3d(t0, t, s, calls)
 
 
 def build_angleinterlock(tc, s, calls):
-    w, f = s["warp"], s["weft"]
-    args = (s["nx"], s["ny"], w["spacing"], f["spacing"], w["height"], f["height"])
-    t0 = tc.CTextileAngleInterlock(*args)
-    calls.append(f"t = CTextileAngleInterlock({', '.join(fmt(a) for a in args)})"
-                 "  # (nX, nY, xSpacing, ySpacing, xHeight, yHeight)")
-    t = Recorder(t0, "t", calls)
-    t.SetWarpRatio(s["warp_ratio"])
-    t.SetBinderRatio(s["binder_ratio"])
+    t0, t = start_3d(tc, s, "CTextileAngleInterlock", (), "nX, nY, xSpacing, ySpacing, xHeight, yHeight", calls)
     t.SetupLayers(*s["layers"])
     set_3d_sizes(t, s)
     for col, yarn in s["binder_tops"]:
         t.SetBinderYarnPositions(col, yarn)
-    set_3d_powers(t, s)
-    t.AssignDefaultDomain()
-    set_3d_thickness(t0, t, calls)
-    return t0
+    return finish_3d(t0, t, s, calls)
 
 
 BUILDERS = {"weave2d": build_weave2d, "orthogonal": build_orthogonal, "layertolayer": build_layertolayer,

@@ -466,14 +466,19 @@ def solve_args(*extra):
     return ["solve", "plain", "--seed", 1.0, "--no-figures", *extra]
 
 
+def model_in_folder(tmp_path, name):
+    """plain.tg3 copied as tmp_path/models/NAME: (the folder, the model, its bytes)."""
+    folder = tmp_path / "models"
+    folder.mkdir()
+    original = (REPO / "reference" / "models" / "plain.tg3").read_bytes()
+    (folder / name).write_bytes(original)
+    return folder, folder / name, original
+
+
 @pytest.mark.serial
 def test_out_in_the_input_folder_never_replaces_the_input(tmp_path):
     # was: the input corrected.tg3 overwritten by the run's corrected.tg3
-    folder = tmp_path / "models"
-    folder.mkdir()
-    model = folder / "corrected.tg3"
-    original = (REPO / "reference" / "models" / "plain.tg3").read_bytes()
-    model.write_bytes(original)
+    folder, model, original = model_in_folder(tmp_path, "corrected.tg3")
     for force in ([], ["--force"]):
         refused(["solve", model, "--seed", 1.0, "--out", folder, *force],
                 f"--out {folder} would replace or remove the input {model}", tmp_path)
@@ -482,11 +487,7 @@ def test_out_in_the_input_folder_never_replaces_the_input(tmp_path):
 
 @pytest.mark.serial
 def test_out_in_the_input_folder_needs_force(tmp_path):
-    folder = tmp_path / "models"
-    folder.mkdir()
-    model = folder / "plain.tg3"
-    original = (REPO / "reference" / "models" / "plain.tg3").read_bytes()
-    model.write_bytes(original)
+    folder, model, original = model_in_folder(tmp_path, "plain.tg3")
     refused(["solve", model, "--seed", 1.0, "--out", folder], "is the folder of the input", tmp_path)
     assert leftovers(folder) == ["plain.tg3"]
     run = cli("solve", model, "--seed", 1.0, "--no-figures", "--out", folder, "--force")
