@@ -43,7 +43,8 @@ class ContactPair:
     upper: int
     lower: int
     dofs: np.ndarray      # the upper yarn's local dofs
-    owned: np.ndarray     # positions (in dofs) of the dofs this rank owns
+    parent: np.ndarray    # their global parent dofs
+    owner: np.ndarray     # the rank owning each parent dof (it may hold no cell of this pair)
     g0: np.ndarray        # initial gap [mm]
     margin: np.ndarray    # how much the P2 gap overstates the model's gap near the dof [mm]
     at_u: np.ndarray      # positions of the unknowns of u and l in the gathered vector
@@ -87,6 +88,7 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         du, dl = dofs[:, 0], dofs[:, 1]
         g0 = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
         parent = numbering.parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
+        owner = numbering.parent_owner(yu.to_parent[du])
         cu, cl = numbering.unknown(u, parent), numbering.unknown(l, parent)
         # T^T J T: J's entry (i, j) adds +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j);
         # a column may be a dof this rank does not hold (rows get couplings from cells elsewhere)
@@ -97,10 +99,10 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         cols.append(np.concatenate([uj, lj, uj, lj]))
         owned_cells = sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]
         margin = ms.contact_margin.get((u, l), np.zeros(len(du)))
-        pending.append((u, l, du, np.flatnonzero(du < n_owned), g0, margin, cu, cl, owned_cells, forms))
-    need = np.unique(np.concatenate([np.concatenate([p[6], p[7]]) for p in pending] + [np.zeros(0, np.int64)]))
-    pairs = [ContactPair(u, l, du, owned, g0, margin, np.searchsorted(need, cu), np.searchsorted(need, cl), cells,
-                         forms) for u, l, du, owned, g0, margin, cu, cl, cells, forms in pending]
+        pending.append((u, l, du, parent, owner, g0, margin, cu, cl, owned_cells, forms))
+    need = np.unique(np.concatenate([np.concatenate([p[7], p[8]]) for p in pending] + [np.zeros(0, np.int64)]))
+    pairs = [ContactPair(u, l, du, parent, owner, g0, margin, np.searchsorted(need, cu), np.searchsorted(need, cl),
+                         cells, forms) for u, l, du, parent, owner, g0, margin, cu, cl, cells, forms in pending]
     cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
     return pairs, (cat(rows), cat(cols)), need
 
@@ -118,11 +120,11 @@ def jacobian_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:
 
 
 def residual_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:
-    """The contact residual dE/dg at gap g, at the pair's owned dofs (+r to u's unknowns, -r to l's)."""
+    """This rank's part of the contact residual dE/dg at gap g, at the pair's dofs (+r to u's
+    unknowns, -r to l's): the integrals over its owned cells, not yet summed over the ranks (the
+    owner of a dof may hold no cell of the pair, and so no place for the sum)."""
     pair.fill(g)
-    f = dolfinx.fem.assemble_vector(pair.forms.residual)
-    f.scatter_reverse(dolfinx.la.InsertMode.add)
-    return f.array[pair.dofs[pair.owned]]
+    return dolfinx.fem.assemble_vector(pair.forms.residual).array[pair.dofs]
 
 
 def gathered_unknowns(template: PETSc.Vec, need: np.ndarray) -> tuple[PETSc.Scatter, PETSc.Vec]:
@@ -163,16 +165,40 @@ class Nodes:
         return np.concatenate([c, -c, -c, c])
 
 
-def contact_nodes(pairs: list[ContactPair], need: np.ndarray, images: list[np.ndarray]) -> Nodes:
-    """One constraint per (pair, node) among the owned overlap dofs: the gap at least the node's
-    margin (the P2 field's overstatement of the model's gap around it). A periodic image (a dof on
-    the right or top side, the slave of one on the left or bottom) is the same constraint as its
-    master's and is left out, whatever rank owns either: the set of constraints, like the
-    unknowns, does not depend on the partition. images[i]: yarn i's dofs that are images, per
-    pair's upper yarn (bool over its local dofs)."""
+def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list[np.ndarray]) -> Nodes:
+    """One constraint per (pair, node) of the overlaps: the gap at least the node's margin (the
+    P2 field's overstatement of the model's gap around it). A periodic image (a dof on the right
+    or top side, the slave of one on the left or bottom) is the same constraint as its master's
+    and is left out. A node seen by several ranks (it lies on the cells of the pair they hold)
+    is given to one of them (`_claim`): the set of constraints, like the unknowns, does not depend
+    on the partition. images[i]: yarn i's dofs that are images (bool over its local dofs)."""
+    seen = [np.flatnonzero(~images[p.upper][p.dofs]) for p in pairs]
+    key = np.concatenate([k + len(pairs) * p.parent[at] for k, (p, at) in enumerate(zip(pairs, seen))]
+                         + [np.zeros(0, np.int64)])  # (pair, parent dof) as one number
+    owner = np.concatenate([p.owner[at] for p, at in zip(pairs, seen)] + [np.zeros(0, np.int32)])
+    take = np.split(_claim(comm, key, owner), np.cumsum([len(at) for at in seen])[:-1]) if pairs else []
     parts = []
-    for k, p in enumerate(pairs):
-        at = p.owned[~images[p.upper][p.dofs[p.owned]]]
+    for k, (p, at, mine) in enumerate(zip(pairs, seen, take)):
+        at = at[mine]
         parts.append((np.full(len(at), k), at, p.at_u[at], p.at_l[at], p.g0[at] - p.margin[at]))
     pair, at, at_u, at_l, g0 = (np.concatenate(a) for a in zip(*parts)) if parts else (np.zeros(0, np.int64),) * 5
     return Nodes(pair.astype(np.int64), at.astype(np.int64), at_u, at_l, need[at_u], need[at_l], g0.astype(float))
+
+
+def _claim(comm, key: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Which of this rank's keys (distinct on it; a key may be on several ranks) it takes, so that
+    each key is taken by one rank: the owner given for it if the owner holds it, else the
+    lowest-ranked rank that does. Two exchanges with the owners."""
+    me = comm.rank
+    take = owner == me
+    if comm.size == 1:
+        return take
+    asked = comm.alltoall([key[owner == r] if r != me else key[:0] for r in range(comm.size)])
+    rank = np.concatenate([np.full(len(a), r, np.int64) for r, a in enumerate(asked)])
+    wanted = np.concatenate(asked)
+    unheld = ~np.isin(wanted, key[take])
+    wanted, rank = wanted[unheld], rank[unheld]
+    order = np.lexsort((rank, wanted))  # by key, then rank: the first of each key is its lowest holder
+    first = order[np.r_[True, wanted[order][1:] != wanted[order][:-1]]] if len(order) else order
+    given = comm.alltoall([wanted[first][rank[first] == r] for r in range(comm.size)])
+    return take | np.isin(key, np.concatenate(given))

@@ -149,7 +149,7 @@ class _InteriorPoint:
         self.s, self.lam = s + alpha * ds, lam + alpha * dl
         rd.destroy()
         return dict(iteration=it, mu=mu, max_penetration=self.max(-g), step=alpha, sigma=sigma,
-                    moved_mm=alpha * self.dx.norm(PETSc.NormType.NORM_INFINITY))
+                    moved_mm=alpha * problem.motion(self.dx))
 
 
 def solve_exact(problem: ContactProblem, x0=None) -> Outcome:

@@ -26,6 +26,7 @@ class Periodicity:
         imap = V.dofmap.index_map
         self.comm = comm
         self.parent_global = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
+        self._parent_owners = np.concatenate([np.full(imap.size_local, comm.rank, np.int32), imap.owners])
         self.images = []
         for pairs in ms.periodic:
             order = np.argsort(pairs[:, 0])
@@ -67,6 +68,10 @@ class Periodicity:
             raise SolverError(f"yarn {i}: a dof has no master unknown (its periodic image is not a dof of the "
                               "yarn: the footprint is not periodic on the mesh)")
         return vals[k]
+
+    def parent_owner(self, local: np.ndarray) -> np.ndarray:
+        """The ranks owning local parent dofs."""
+        return self._parent_owners[local]
 
     def image_dofs(self, ms: MidSurfaces) -> list[np.ndarray]:
         """Per yarn, which of its local dofs (owned and ghost) are periodic images (slaves)."""

@@ -92,7 +92,7 @@ class ContactProblem:
         self.R, self.b_fixed = assemble_plates(ms, numbering, pattern, params, loads or {}, foundation_stiffness)
         self._translation(foundation_stiffness)
         self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact)
-        self.nodes = contact_nodes(self.pairs, need, numbering.image_dofs(ms)) if self.exact else None
+        self.nodes = contact_nodes(self.comm, self.pairs, need, numbering.image_dofs(ms)) if self.exact else None
         if self.nodes is not None:
             nr, nc = self.nodes.pattern()
             rows, cols = np.concatenate([rows, nr]), np.concatenate([cols, nc])
@@ -134,8 +134,8 @@ class ContactProblem:
         return np.concatenate(parts)
 
     def _add_contact(self, vec: PETSc.Vec, per_pair: list[np.ndarray]) -> None:
-        """vec += T^T r: each pair's values at its owned dofs, + at u's unknowns and - at l's."""
-        rows = [self.need[p.at_u[p.owned]] for p in self.pairs] + [self.need[p.at_l[p.owned]] for p in self.pairs]
+        """vec += T^T r: each pair's values at its dofs (this rank's part), + at u's unknowns and - at l's."""
+        rows = [self.need[p.at_u] for p in self.pairs] + [self.need[p.at_l] for p in self.pairs]
         vals = list(per_pair) + [-r for r in per_pair]
         if rows:
             vec.setValues(np.concatenate(rows).astype(PETSc.IntType), np.concatenate(vals),
@@ -244,15 +244,22 @@ class ContactProblem:
                     "negative by round-off", what, eigenvalue, scale, negative)
 
     def penetration(self, g: list[np.ndarray]) -> tuple[float, float]:
-        """The largest -g at the owned overlap dofs [mm] (0 when none penetrates) and the volume the
-        gap field says, the integral of max(0, -g) over the overlaps [mm^3]."""
+        """The largest -g at the overlap dofs [mm] (0 when none penetrates) and the volume the gap
+        field says, the integral of max(0, -g) over the overlaps [mm^3]."""
         worst, volume = 0.0, 0.0
         for p, gp in zip(self.pairs, g):
-            if len(p.owned):
-                worst = max(worst, float(np.max(-gp[p.owned])))
+            if len(gp):
+                worst = max(worst, float(np.max(-gp)))
             p.fill(gp)
             volume += dolfinx.fem.assemble_scalar(p.forms.penetration)
         return self.comm.allreduce(worst, op=MPI.MAX), self.comm.allreduce(volume, op=MPI.SUM)
+
+    def motion(self, dx: PETSc.Vec) -> float:
+        """The largest |dx| less the common translation (its area-weighted mean), which moves no
+        yarn against another and depends on which unknown is pinned: on the partition [mm]."""
+        mean = self.area_weights.dot(dx) / self.area if self.free_translation else 0.0
+        local = dx.getArray(readonly=True)
+        return self.comm.allreduce(float(np.max(np.abs(local - mean))) if len(local) else 0.0, op=MPI.MAX)
 
     def displacements(self, x: PETSc.Vec) -> list[dolfinx.fem.Function]:
         """Per yarn w = R_i x, after the common translation is set to zero area-weighted mean."""
@@ -266,14 +273,22 @@ class ContactProblem:
         return w
 
     def fields(self, g: list[np.ndarray], active: list[np.ndarray]) -> tuple[list, list]:
-        """Per yarn, its gap to the yarn below [mm] and where contact is active (1), for output."""
+        """Per yarn, its gap to the yarn below [mm] (0 where none is) and where contact is active (1),
+        for output. The owner of a dof may hold no cell of its pair: the values go to the owners
+        (the largest, from -inf where a rank has none), then to the ghosts."""
         gaps, states = [], []
         for y in self.ms.yarns:
             gaps.append(dolfinx.fem.Function(y.V, name="gap_below"))
+            gaps[-1].x.array[:] = -np.inf
             states.append(dolfinx.fem.Function(y.V, name="contact"))
         for p, gp, a in zip(self.pairs, g, active):
             gaps[p.upper].x.array[p.dofs] = gp
             states[p.upper].x.array[p.dofs] = a.astype(float)
+        for f in gaps + states:
+            f.x.petsc_vec.ghostUpdate(addv=PETSc.InsertMode.MAX_VALUES, mode=PETSc.ScatterMode.REVERSE)
+            f.x.scatter_forward()
+        for f in gaps:
+            f.x.array[np.isneginf(f.x.array)] = 0.0
         return gaps, states
 
     def destroy(self) -> None:
