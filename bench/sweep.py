@@ -37,8 +37,9 @@ def cases() -> list[str]:
     return sorted(p.stem for p in FABRICS.glob("*.tg3")) + sorted(BUILT)
 
 
-def run_case(name: str, seed: float = 0.5, timeout: float = 900) -> dict:
-    """Solve one case with the default command in a fresh process; its record."""
+def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1) -> dict:
+    """Solve one case with the default command in a fresh process (under mpirun -n ranks if > 1);
+    its record."""
     with tempfile.TemporaryDirectory(prefix=f"sweep-{name[:30]}-") as tmp:
         tmp = Path(tmp)
         if name in BUILT:
@@ -51,9 +52,11 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900) -> dict:
             model = FABRICS / f"{name}.tg3"
         out = tmp / "run"
         start = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "textile_fenicsx", "solve", str(model), "--seed", str(seed),
+        mpi = ["mpirun", "-n", str(ranks)] if ranks > 1 else []
+        proc = subprocess.run([*mpi, sys.executable, "-m", "textile_fenicsx", "solve", str(model), "--seed", str(seed),
                                "--no-figures", "--out", str(out)], capture_output=True, text=True, timeout=timeout)
-        record = {"case": name, "seed": seed, "exit": proc.returncode, "seconds": time.perf_counter() - start}
+        record = {"case": name, "seed": seed, "ranks": ranks, "exit": proc.returncode,
+                  "seconds": time.perf_counter() - start}
         metrics = out / "metrics.json"
         if metrics.is_file():
             m = json.loads(metrics.read_text())
@@ -91,12 +94,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seed", type=float, default=0.5)
     parser.add_argument("--only", nargs="+", metavar="NAME")
+    parser.add_argument("--ranks", type=int, default=1, help="MPI ranks per solve (mpirun -n)")
     parser.add_argument("--out", type=Path, default=REPO / "output" / "sweep.json")
     args = parser.parse_args()
     records = []
     for name in args.only or cases():
         print(f"sweep: {name}", file=sys.stderr, flush=True)
-        records.append(run_case(name, args.seed))
+        records.append(run_case(name, args.seed, ranks=args.ranks))
         r = records[-1]
         print(f"sweep: {name}: exit {r['exit']}" + (f", {r['failures']}" if r.get("failures") else "")
               + (f", {r['error']}" if r.get("error") and not r.get("failures") else ""), file=sys.stderr, flush=True)
