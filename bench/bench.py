@@ -38,6 +38,7 @@ CASES = {
     "satin4 0.25 penalty": ("satin4", 0.25, None, "penalty", (1,)),
     "orthogonal 0.5": ("orthogonal", 0.5, None, "exact", (1, 2)),
     "orthogonal 0.5 penalty": ("orthogonal", 0.5, None, "penalty", (1,)),
+    "satin4 2x2 0.25": ("satin4", 0.25, (2, 2), "exact", (1,)),  # tests/test_hardening.py: the memory guard
     "satin4 4x4 0.25": ("satin4", 0.25, (4, 4), "exact", (1, 2)),
     "satin4 4x4 0.25 free edges": ("satin4", 0.25, (4, 4, "free"), "exact", (1, 2)),
     "satin4 8x8 0.25": ("satin4", 0.25, (8, 8), "exact", (2,)),

@@ -351,6 +351,30 @@ def test_too_many_master_nodes_are_refused(n, message, tmp_path):
 
 
 @pytest.mark.serial
+@pytest.mark.slow
+def test_the_memory_guard_covers_what_the_bench_measures(tmp_path):
+    # The guard (check_memory) refuses a seed whose run would need more than the machine has,
+    # from the estimated dofs x BYTES_PER_DOF + BYTES_PER_RANK, constants read off `make bench`.
+    # The bench's own record of a small coupon (84 000 dofs, its own process): the guard's need
+    # covers the peak resident set, and is not so pessimistic (4x) that it refuses runs that fit.
+    from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_RANK
+
+    name = "satin4 2x2 0.25"
+    proc = subprocess.run([sys.executable, str(REPO / "bench" / "bench.py"), "--case", name], capture_output=True,
+                          text=True, timeout=600, env={**os.environ, "TEXTILE_FENICSX_BENCH_TMP": str(tmp_path)})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    record = json.loads(proc.stdout.strip().splitlines()[-1])
+    mb = 2**20
+    peak, base = record["memory_mb"]["peak_sum"] * mb, record["memory_mb"]["after_stage_sum"]["model"] * mb
+    per_dof = (peak - base) / record["dofs"]
+    assert base < BYTES_PER_RANK
+    assert BYTES_PER_DOF / 4 < per_dof < BYTES_PER_DOF, f"{per_dof:.0f} bytes per dof"
+    need = estimated_dofs(tile(load_model(REPO / "reference" / "models" / "satin4.tg3"), 2, 2), 0.25) * BYTES_PER_DOF \
+        + BYTES_PER_RANK
+    assert peak < need < 4 * peak, f"peak {peak / 1e9:.2f} GB, the guard's need {need / 1e9:.2f} GB"
+
+
+@pytest.mark.serial
 def test_dense_master_nodes_are_measured_in_bounded_memory():
     # 2000 master nodes (the limit) over one 4 mm period: its tube has 8000 stations of triangles
     # 0.5 um long. The rays' bins were the station spacing (0.1 mm), so every bin held thousands of
