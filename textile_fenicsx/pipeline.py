@@ -14,7 +14,7 @@ from mpi4py import MPI
 from textile_fenicsx.correct import CorrectionOptions, corrected_textile
 from textile_fenicsx.legs import STEEP, leg_loads, split_steep
 from textile_fenicsx.slopes import slope_thickness
-from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces
+from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
 from textile_fenicsx.solver import ContactProblem, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.textile import Textile
@@ -112,9 +112,12 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     times["assemble"] = time.perf_counter() - t
     t = time.perf_counter()
     solution = solve_problem(problem)
-    if solution.converged:  # once more with the thickness the new slopes give (slopes.py)
+    if solution.converged:  # once more with the thickness the new slopes give (slopes.py), and
+        # margins that keep the gap field >= 0 between the nodes as well
+        dip = widen_margins(ms, solution.w)
         change = slope_thickness(ms, solution.w)
-        log.info("slopes: thickness changed by up to %.2f %%; solving again with it", 100 * change)
+        log.info("slopes: thickness changed by up to %.2f %%; margins widened by up to %.1e mm where the gap "
+                 "dips between nodes; solving again", 100 * change, dip)
         first = solution
         solution = solve_problem(ContactProblem(ms, settings.plate, settings.solver, loads=loads), start=first)
         solution.iterations += first.iterations
