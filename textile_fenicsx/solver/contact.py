@@ -46,7 +46,7 @@ class ContactPair:
     parent: np.ndarray    # their global parent dofs
     owner: np.ndarray     # the rank owning each parent dof (it may hold no cell of this pair)
     g0: np.ndarray        # initial gap [mm]
-    margin: np.ndarray    # how much the P2 gap overstates the model's gap near the dof [mm]
+    margin: np.ndarray    # the gap the node keeps (midsurface margins: P2 overstatement, dips between nodes) [mm]
     at_u: np.ndarray      # positions of the unknowns of u and l in the gathered vector
     at_l: np.ndarray
     cells: np.ndarray     # the upper yarn's owned cells of the overlap
