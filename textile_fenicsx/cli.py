@@ -181,7 +181,7 @@ def _solve(args) -> int:
         plate=PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et),
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
                              penetration_tol=args.penetration_tol),
-        correction=CorrectionOptions())
+        correction=CorrectionOptions(), mould=args.mould)
     _check_repeat(args)
     t = time.perf_counter()
     textile = _repeated(load_input(args.input), args, settings.mesh, comm.size)
@@ -382,8 +382,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--penetration-tol", type=float, default=1e-6,
                    help="exact method: penetration and complementarity tolerance at the nodes [mm] (1e-6)")
     p.add_argument("--max-iterations", type=int, default=100, help="cap on contact iterations (100)")
+    p.add_argument("--mould", type=_mould, default="auto", metavar="auto|none|T",
+                   help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
+                   "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
+                   "the thickness a 3D weave is woven to (TexGen's FabricThickness), none for other fabrics")
     p.set_defaults(run=_solve)
     return parser
+
+
+def _mould(text: str):
+    """--mould's value: "auto", None ("none") or a thickness [mm]."""
+    if text in ("auto", "none"):
+        return None if text == "none" else text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, none or a thickness in mm, got {text!r}") from None
 
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130

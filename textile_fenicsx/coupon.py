@@ -105,7 +105,7 @@ def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textil
                 yarns.append(replace(copy, nodes=copy.nodes + shift, repeats=big.repeats.copy()))
                 source.append(index)
     return Textile(big, yarns, name=f"{textile.name}_{nx}x{ny}", resolution=textile.resolution,
-                   tiling=Tiling(textile, nx, ny, tuple(source)))
+                   tiling=Tiling(textile, nx, ny, tuple(source)), thickness=textile.thickness)
 
 
 def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
@@ -138,7 +138,7 @@ def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
                     yarns.append(copy)
                     source.append(index)
     return Textile(box, yarns, name=f"{textile.name}_{nx}x{ny}_free", resolution=textile.resolution,
-                   tiling=Tiling(textile, nx, ny, tuple(source)))
+                   tiling=Tiling(textile, nx, ny, tuple(source)), thickness=textile.thickness)
 
 
 def _enters(yarn, section_points: int, box: Cell) -> bool:

@@ -100,6 +100,7 @@ def metrics_document(run) -> dict:
         "time_s": dict(run.times),
         "parameters": asdict(run.settings.plate), "solver": asdict(run.settings.solver),
         "mesh": asdict(run.settings.mesh), "correction": asdict(run.settings.correction),
+        "mould": {"asked": run.settings.mould, "closed": summary["mould"]},
         "ranks": run.comm.size, "versions": versions(), "units": "mm, mm^3",
     }
 

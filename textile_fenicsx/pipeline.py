@@ -16,7 +16,9 @@ from textile_fenicsx.legs import STEEP, leg_loads, split_steep
 from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
-from textile_fenicsx.solver import ContactProblem, PlateParameters, Solution, SolverOptions, solve_problem
+from textile_fenicsx.errors import TextileError
+from textile_fenicsx.limits import check_length
+from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.textile import Textile
 
 __all__ = ["Run", "Settings", "run"]
@@ -26,12 +28,29 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Settings:
-    """Everything a run was asked to do."""
+    """Everything a run was asked to do. mould: the thickness of the mould the fabric is solved in
+    [mm] (its cavity centred on the model's mid-plane; it closes only on a fabric that comes out
+    thicker), "auto" (the default) for the thickness the textile is woven to where it states one
+    (3D weaves: `Textile.thickness`), None for none."""
 
     mesh: MeshOptions = MeshOptions()
     plate: PlateParameters = PlateParameters()
     solver: SolverOptions = SolverOptions()
     correction: CorrectionOptions = CorrectionOptions()
+    mould: float | str | None = "auto"
+
+    def __post_init__(self):
+        if self.mould is not None and self.mould != "auto":
+            check_length("mould thickness", self.mould)
+            if self.solver.method != "exact":
+                raise TextileError("a mould needs the exact contact method (its platens are constraints)")
+
+    def mould_thickness(self, textile: Textile) -> float | None:
+        """The cavity's thickness for this textile [mm], None for no mould (auto: none with the
+        penalty method)."""
+        if self.mould == "auto":
+            return textile.thickness if self.solver.method == "exact" else None
+        return self.mould
 
 
 @dataclass
@@ -45,6 +64,7 @@ class Run:
     solution: Solution
     corrected: Textile | None
     times: dict = field(default_factory=dict)
+    mould: Mould | None = None  # the mould's platens, where it closed on the fabric
     _metrics: dict | None = field(default=None, repr=False)
 
     @property
@@ -65,6 +85,8 @@ class Run:
             "iterations": sol.iterations, "updates": sol.updates, "converged": sol.converged,
             "reason": sol.reason, "max_penetration_nodal": sol.max_penetration,
             "max_abs_w": self.comm.allreduce(local, op=MPI.MAX), "time_s": dict(self.times),
+            "mould": None if self.mould is None else {"bottom": self.mould.bottom, "top": self.mould.top,
+                                                      "thickness": self.mould.thickness},
         }
 
     @property
@@ -93,7 +115,7 @@ class Run:
 def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.COMM_WORLD) -> Run:
     """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
     and correct the textile (collective over comm)."""
-    times = {}
+    times, mould = {}, None
     start = t = time.perf_counter()
     split = split_steep(textile, settings.mesh.seed / 2)  # binder legs are not plates (legs.py)
     if split.any:
@@ -119,7 +141,9 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
         log.info("slopes: thickness changed by up to %.2f %%; margins widened by up to %.1e mm where the gap "
                  "dips between nodes; solving again", 100 * change, dip)
         first = solution
-        solution = solve_problem(ContactProblem(ms, settings.plate, settings.solver, loads=loads), start=first)
+        mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile))
+        solution = solve_problem(ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould),
+                                 start=first)
         solution.iterations += first.iterations
         solution.history = first.history + solution.history
     times["solve"] = time.perf_counter() - t
@@ -132,9 +156,37 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     else:
         log.warning("solve: the contact iteration did not converge: %s", solution.reason)
     times["total"] = time.perf_counter() - start
-    result = Run(textile, settings, ms, solution, corrected, times)
+    result = Run(textile, settings, ms, solution, corrected, times, mould=mould if solution.converged else None)
     s = result.summary()
     log.info("solve: %d dofs, %d Newton steps, max penetration %.3e mm, max |w| %.4f mm, %s", s["dofs"],
              s["iterations"], s["max_penetration_nodal"], s["max_abs_w"],
              ", ".join(f"{k} {v:.2f} s" for k, v in times.items()))
     return result
+
+
+def _extent(ms: MidSurfaces, w=None) -> tuple[float, float]:
+    """The lowest bottom and highest top of the plates at their nodes, z0 + w -+ t/2 [mm]."""
+    lo, hi = np.inf, -np.inf
+    for k, y in enumerate(ms.yarns):
+        z = y.z0.x.array + (0.0 if w is None else w[k].x.array)
+        if len(z):
+            lo, hi = min(lo, float(np.min(z - y.t.x.array / 2))), max(hi, float(np.max(z + y.t.x.array / 2)))
+    comm = ms.V.mesh.comm
+    return comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)
+
+
+def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None) -> Mould | None:
+    """A mould of the given thickness centred on the model's mid-plane, if the solved plates w are
+    thicker than it (a mould that touches nothing holds nothing, and leaves the common translation
+    free: the solve then keeps its pin); else None."""
+    if thickness is None:
+        return None
+    lo, hi = _extent(ms, w)
+    if hi - lo <= thickness:
+        log.info("mould: the fabric (%.4f mm) fits the mould's %.4f mm: it stays open", hi - lo, thickness)
+        return None
+    lo0, hi0 = _extent(ms)
+    mid = (lo0 + hi0) / 2
+    log.info("mould: the fabric came out %.4f mm thick, the mould is %.4f mm: solving again between its "
+             "platens (z = %.4f, %.4f mm)", hi - lo, thickness, mid - thickness / 2, mid + thickness / 2)
+    return Mould(mid - thickness / 2, mid + thickness / 2)

@@ -126,17 +126,22 @@ class Columns:
 class Textile:
     """A unit cell with its yarns (mm, z through the thickness). tiling: for a coupon made by
     `coupon.tile`, how (the unit cell, the repeats, each yarn's source), so that its mesh can be
-    the unit cell's repeated; None otherwise."""
+    the unit cell's repeated; None otherwise. thickness: the thickness the fabric is woven to [mm],
+    where its maker states one (a 3D weave's: TexGen's FabricThickness, our orthogonal builder's),
+    the default mould of the solve (pipeline.Settings.mould); None otherwise."""
 
     cell: Cell
     yarns: list = field(default_factory=list)
     name: str = "textile"
     resolution: Resolution = field(default_factory=Resolution)
     tiling: object = None
+    thickness: float | None = None
 
     def __post_init__(self):
         if not self.yarns:
             raise TextileError(f"textile {self.name!r} has no yarns")
+        if self.thickness is not None:
+            limits.check_length(f"textile {self.name!r}: thickness", self.thickness)
         limits.check_many(f"textile {self.name!r}: yarns", len(self.yarns), limits.MAX_YARNS)
         for i, y in enumerate(self.yarns):
             if not isinstance(y, Yarn):

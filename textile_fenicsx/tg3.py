@@ -28,6 +28,9 @@ INTERPOLATION_IN = {"CInterpolationBezier": "bezier", "CInterpolationCubic": "cu
 INTERPOLATION_OUT = {v: k for k, v in INTERPOLATION_IN.items()}
 # Children that carry no geometry of the yarn or describe how a weave textile built its yarns.
 IGNORED_YARN_CHILDREN = {"FibreDistribution", "SectionMesh", "SlaveNode", "Mesh"}
+# TexGen's 3D weave classes, whose FabricThickness is the thickness the preform is woven to (the
+# default mould of the solve); a 2D weave's is its yarns' nominal stack, which the solve may exceed
+WOVEN_TO_THICKNESS = {"CTextile3DWeave", "CTextileOrthogonal", "CTextileLayerToLayer", "CTextileAngleInterlock"}
 IGNORED_TEXTILE_CHILDREN = {"PatternCell", "XYarns", "YYarns", "XYarnData", "YYarnData", "Properties",
                             "Layer", "Layers", "BinderYarns", "WarpYarns", "WeftYarns"}
 
@@ -258,7 +261,9 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
     cell = _domain(el, yarns, where)
     try:
-        textile = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem)
+        woven_to = (_attr(el, "FabricThickness", where)
+                    if el.get("type") in WOVEN_TO_THICKNESS and el.get("FabricThickness") is not None else None)
+        textile = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to)
         textile.check_size()
         return textile
     except FormatError:

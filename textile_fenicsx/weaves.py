@@ -238,7 +238,8 @@ def orthogonal(n_warp_stacks: int = 2, n_weft_columns: int = 4, warp_layers: int
                               tangents=np.tile(along_y, (3, 1)), name=f"weft {j}.{layer}"))
     thickness = tops[-1] + 2 * binder_height
     pad = 0.05 * thickness
-    return Textile(Cell(Lx, Ly, z_range=(-binder_height - pad, tops[-1] + binder_height + pad)), yarns, name=name)
+    return Textile(Cell(Lx, Ly, z_range=(-binder_height - pad, tops[-1] + binder_height + pad)), yarns, name=name,
+                   thickness=thickness)
 
 
 def build(name: str, **options) -> Textile:

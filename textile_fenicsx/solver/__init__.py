@@ -1,7 +1,7 @@
 """Plate + tension + contact solve of all yarns at once (DESIGN.md sections 5, 6 and 9).
 
 One module per idea:
-- parameters: PlateParameters, SolverOptions, Solution;
+- parameters: PlateParameters, Mould, SolverOptions, Solution;
 - periodic: the unknowns (Periodicity, the one owner of the periodic numbering) and seam facets;
 - pattern: the combined matrix's fixed CSR pattern (FixedPattern);
 - contact: contact pairs as data, their forms derived from the contact energy;
@@ -17,10 +17,10 @@ from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.meshes.projected import release_freed_memory
 from textile_fenicsx.solver.linear import DIRECT_LDLT, DIRECT_LU, SolverError, check_converged
 from textile_fenicsx.solver.newton import solve_exact, solve_penalty
-from textile_fenicsx.solver.parameters import METHODS, PlateParameters, Solution, SolverOptions
+from textile_fenicsx.solver.parameters import METHODS, Mould, PlateParameters, Solution, SolverOptions
 from textile_fenicsx.solver.problem import ContactProblem
 
-__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "ContactProblem", "PlateParameters", "Solution", "SolverError",
+__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "ContactProblem", "Mould", "PlateParameters", "Solution", "SolverError",
            "SolverOptions", "check_converged", "solve", "solve_problem"]
 
 log = logging.getLogger(__name__)

@@ -5,6 +5,8 @@ A pair's arrays live on its overlap only (whole-yarn objects per pair cost gigab
 with a thousand pairs); the forms read the gap from one scratch Function per upper yarn, filled
 just before use. The gap at a dof is g = g0 + x[u] - x[l] (T x: crossing yarns share the parent
 mesh's nodes, so the lower yarn's value at the same point is its own dof there).
+A mould (parameters.Mould) adds one constraint per yarn node and platen, with the platen in the
+place of the other yarn: g = z - t/2 - bottom >= 0 and g = top - (z + t/2) >= 0.
 """
 
 from dataclasses import dataclass
@@ -16,11 +18,14 @@ from petsc4py import PETSc
 import dolfinx
 from textile_fenicsx.forms import contact_forms, penetration_volume
 from textile_fenicsx.meshes.midsurface import MidSurfaces
-from textile_fenicsx.solver.parameters import PlateParameters
+from textile_fenicsx.solver.parameters import Mould, PlateParameters
 from textile_fenicsx.solver.periodic import Periodicity
 
-__all__ = ["ContactPair", "Nodes", "PairForms", "build_pairs", "contact_nodes", "gathered_unknowns", "jacobian_values",
-           "residual_values"]
+__all__ = ["ContactPair", "MouldRows", "Nodes", "PairForms", "build_pairs", "contact_nodes", "gathered_unknowns",
+           "jacobian_values", "mould_rows", "residual_values"]
+
+# a node's "other yarn" where it is a platen: no pair, no unknown
+NONE = -1
 
 
 @dataclass(frozen=True)
@@ -61,9 +66,11 @@ class ContactPair:
         self.forms.g.x.array[self.dofs] = g
 
 
-def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters, exact: bool):
+def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters, exact: bool,
+                extra: np.ndarray = np.zeros(0, np.int64)):
     """The pairs, and the (row, column) unknowns of T^T J T's entries in the order `jacobian_values`
-    gives them, and the unknowns every pair needs (sorted: the gathered vector's layout)."""
+    gives them, and the unknowns every pair (and `extra`: the mould's) needs (sorted: the gathered
+    vector's layout)."""
     yarns = ms.yarns
     scratch, cell_order = {}, {}
     pending, rows, cols = [], [], []
@@ -100,7 +107,7 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         owned_cells = sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]
         margin = ms.contact_margin.get((u, l), np.zeros(len(du)))
         pending.append((u, l, du, parent, owner, g0, margin, cu, cl, owned_cells, forms))
-    need = np.unique(np.concatenate([np.concatenate([p[7], p[8]]) for p in pending] + [np.zeros(0, np.int64)]))
+    need = np.unique(np.concatenate([np.concatenate([p[7], p[8]]) for p in pending] + [extra.astype(np.int64)]))
     pairs = [ContactPair(u, l, du, parent, owner, g0, margin, np.searchsorted(need, cu), np.searchsorted(need, cl),
                          cells, forms) for u, l, du, parent, owner, g0, margin, cu, cl, cells, forms in pending]
     cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
@@ -138,11 +145,39 @@ def gathered_unknowns(template: PETSc.Vec, need: np.ndarray) -> tuple[PETSc.Scat
 
 
 @dataclass(frozen=True)
-class Nodes:
-    """The exact method's constraints g >= 0, one per owned overlap node of each pair (a node and
-    its periodic image give one). Arrays over the nodes of this rank."""
+class MouldRows:
+    """The mould's constraints on this rank: one per owned yarn node (images left out, like the
+    pairs') and platen. unknown: the yarn's unknown (global index); sign: +1 for the bottom platen
+    (g = g0 + x), -1 for the top one (g = g0 - x); g0: the gap at x = 0 [mm]."""
 
-    pair: np.ndarray      # index of the node's pair
+    unknown: np.ndarray
+    sign: np.ndarray
+    g0: np.ndarray
+
+
+def mould_rows(ms: MidSurfaces, numbering: Periodicity, images: list[np.ndarray], mould: Mould) -> MouldRows:
+    """Every yarn node between the platens: z - t/2 >= bottom and z + t/2 <= top at its owned,
+    non-image dofs (each unknown once over the ranks)."""
+    parts = []
+    for y, image in zip(ms.yarns, images):
+        dofs = np.flatnonzero(~image[:y.V.dofmap.index_map.size_local])
+        u = numbering.yarn_unknowns(y, dofs)
+        z0, t = y.z0.x.array[dofs], y.t.x.array[dofs]
+        ones = np.ones(len(u))
+        parts.append((np.concatenate([u, u]), np.concatenate([ones, -ones]),
+                      np.concatenate([z0 - t / 2 - mould.bottom, mould.top - (z0 + t / 2)])))
+    unknown, sign, g0 = (np.concatenate(a) for a in zip(*parts))
+    return MouldRows(unknown.astype(np.int64), sign, g0)
+
+
+@dataclass(frozen=True)
+class Nodes:
+    """The exact method's constraints g >= 0: one per owned overlap node of each pair (a node and
+    its periodic image give one), then the mould's. Arrays over the constraints of this rank;
+    a platen takes the place of one of the node's two yarns: there, at_* is the gathered vector's
+    extra slot (a 0) and rows_* is NONE."""
+
+    pair: np.ndarray      # index of the node's pair (NONE: the mould)
     at: np.ndarray        # position of the node in its pair's dofs
     at_u: np.ndarray      # positions of the unknowns of u and l in the gathered vector
     at_l: np.ndarray
@@ -151,27 +186,42 @@ class Nodes:
     g0: np.ndarray        # initial gap less the node's margin [mm]: the constraint is g0 + C x >= 0
 
     def gap(self, gathered: np.ndarray) -> np.ndarray:
-        """g at the nodes from the gathered unknowns [mm]."""
+        """g at the nodes from the gathered unknowns (with the extra 0 slot at their end) [mm]."""
         return self.g0 + gathered[self.at_u] - gathered[self.at_l]
+
+    def _entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """C^T C's (row, column, sign) before the platens' places are left out."""
+        u, l = self.rows_u, self.rows_l
+        one = np.ones(len(u))
+        return np.concatenate([u, u, l, l]), np.concatenate([u, l, u, l]), np.concatenate([one, -one, -one, one])
 
     def pattern(self) -> tuple[np.ndarray, np.ndarray]:
         """(rows, columns) of C^T C's entries, in the order of `values`."""
-        u, l = self.rows_u, self.rows_l
-        return np.concatenate([u, u, l, l]), np.concatenate([u, l, u, l])
+        rows, cols, _ = self._entries()
+        keep = (rows != NONE) & (cols != NONE)
+        return rows[keep], cols[keep]
 
-    @staticmethod
-    def values(c: np.ndarray) -> np.ndarray:
+    def values(self, c: np.ndarray) -> np.ndarray:
         """C^T diag(c) C's entries for the nodal stiffnesses c (0 where a node is inactive)."""
-        return np.concatenate([c, -c, -c, c])
+        rows, cols, sign = self._entries()
+        return (sign * np.tile(c, 4))[(rows != NONE) & (cols != NONE)]
+
+    def transpose_rows(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, values) of C^T v."""
+        rows, vals = np.concatenate([self.rows_u, self.rows_l]), np.concatenate([v, -v])
+        keep = rows != NONE
+        return rows[keep], vals[keep]
 
 
-def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list[np.ndarray]) -> Nodes:
+def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list[np.ndarray],
+                  mould: MouldRows | None = None) -> Nodes:
     """One constraint per (pair, node) of the overlaps: the gap at least the node's margin (the
     P2 field's overstatement of the model's gap around it). A periodic image (a dof on the right
     or top side, the slave of one on the left or bottom) is the same constraint as its master's
     and is left out. A node seen by several ranks (it lies on the cells of the pair they hold)
     is given to one of them (`_claim`): the set of constraints, like the unknowns, does not depend
-    on the partition. images[i]: yarn i's dofs that are images (bool over its local dofs)."""
+    on the partition. images[i]: yarn i's dofs that are images (bool over its local dofs).
+    Then the mould's constraints, if any (their unknowns must be in `need`)."""
     seen = [np.flatnonzero(~images[p.upper][p.dofs]) for p in pairs]
     key = np.concatenate([k + len(pairs) * p.parent[at] for k, (p, at) in enumerate(zip(pairs, seen))]
                          + [np.zeros(0, np.int64)])  # (pair, parent dof) as one number
@@ -180,9 +230,18 @@ def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list
     parts = []
     for k, (p, at, mine) in enumerate(zip(pairs, seen, take)):
         at = at[mine]
-        parts.append((np.full(len(at), k), at, p.at_u[at], p.at_l[at], p.g0[at] - p.margin[at]))
-    pair, at, at_u, at_l, g0 = (np.concatenate(a) for a in zip(*parts)) if parts else (np.zeros(0, np.int64),) * 5
-    return Nodes(pair.astype(np.int64), at.astype(np.int64), at_u, at_l, need[at_u], need[at_l], g0.astype(float))
+        parts.append((np.full(len(at), k), at, p.at_u[at], p.at_l[at], need[p.at_u[at]], need[p.at_l[at]],
+                      p.g0[at] - p.margin[at]))
+    if mould is not None:
+        slot, at = len(need), np.searchsorted(need, mould.unknown)
+        bottom = mould.sign > 0
+        none = np.full(len(at), NONE, np.int64)
+        parts.append((none, none, np.where(bottom, at, slot), np.where(bottom, slot, at),
+                      np.where(bottom, mould.unknown, NONE), np.where(bottom, NONE, mould.unknown), mould.g0))
+    empty = (np.zeros(0, np.int64),) * 6 + (np.zeros(0),)
+    pair, at, at_u, at_l, rows_u, rows_l, g0 = (np.concatenate(a) for a in zip(*(parts or [empty])))
+    return Nodes(pair.astype(np.int64), at.astype(np.int64), at_u.astype(np.int64), at_l.astype(np.int64),
+                 rows_u.astype(np.int64), rows_l.astype(np.int64), g0.astype(float))
 
 
 def _claim(comm, key: np.ndarray, owner: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from textile_fenicsx.solver.contact import NONE
 from textile_fenicsx.solver.problem import ContactProblem
 
 __all__ = ["Outcome", "solve_exact", "solve_penalty"]
@@ -82,7 +83,6 @@ class _InteriorPoint:
     def __init__(self, problem: ContactProblem, x0=None):
         self.problem, self.nodes, self.comm = problem, problem.nodes, problem.comm
         nodes = self.nodes
-        self.rows = np.concatenate([nodes.rows_u, nodes.rows_l])
         self.count = max(self.comm.allreduce(len(nodes.g0), op=MPI.SUM), 1)
         diag = problem.K_fixed.getDiagonal()
         dg = problem.gather(diag)
@@ -96,11 +96,22 @@ class _InteriorPoint:
             tau = max(self.max(-nodes.g0), problem.options.penetration_tol * 1e3)
             self.s = np.maximum(nodes.g0, 0.0) + tau
             self.lam = START_RATIO * self.k * tau
-        else:  # warm: the earlier unknowns and forces, the slacks at the new gaps, kept interior
+        else:  # warm: the earlier unknowns and forces, the slacks at the new gaps, kept interior;
+            # constraints the earlier problem did not have (a mould's) start with a soft spring
             x_start, lam_start = x0
             self.x.getArray()[:] = x_start
+            if problem.mould is not None:
+                self._centre()
             self.s = np.maximum(self.gaps(self.x), WARM_GAP)
+            lam_start = np.concatenate([lam_start, np.zeros(len(self.s) - len(lam_start))])
             self.lam = np.maximum(lam_start, START_RATIO * self.k * WARM_GAP)
+
+    def _centre(self) -> None:
+        """Translate the start to the middle of the mould: the same distance (or overlap) to both
+        platens."""
+        nodes, g = self.nodes, self.gaps(self.x)
+        bottom, top = (nodes.pair == NONE) & (nodes.rows_l == NONE), (nodes.pair == NONE) & (nodes.rows_u == NONE)
+        self.x.shift((-self.max(-g[top]) + self.max(-g[bottom])) / 2)
 
     def max(self, v: np.ndarray) -> float:
         return _global_max(self.comm, v)
@@ -113,7 +124,8 @@ class _InteriorPoint:
 
     def add_transpose(self, vec: PETSc.Vec, v: np.ndarray, scale: float = 1.0) -> None:
         """vec += scale C^T v."""
-        self.problem.add_at(vec, self.rows, scale * np.concatenate([v, -v]))
+        rows, values = self.nodes.transpose_rows(v)
+        self.problem.add_at(vec, rows, scale * values)
 
     def step(self, it: int) -> dict:
         """One predictor-corrector step; what it did."""
@@ -194,7 +206,7 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
     worst = (float(-g[k]), nodes.pair[k], nodes.at[k]) if k >= 0 else (-np.inf, -1, -1)
     pen, pair, at = max(comm.allgather(worst), key=lambda w: w[0])
     where = ""
-    if comm.rank == comm.allgather(worst).index(max(comm.allgather(worst), key=lambda w: w[0])):
+    if comm.rank == comm.allgather(worst).index(max(comm.allgather(worst), key=lambda w: w[0])) and pair != NONE:
         p = problem.pairs[pair]
         y = problem.ms.yarns[p.upper]
         xy = y.V.tabulate_dof_coordinates()[p.dofs[at], :2]
@@ -202,6 +214,10 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
         where = (f" between {names[p.upper]} (yarn {p.upper}) above and {names[p.lower]} (yarn {p.lower}) below "
                  f"at ({xy[0]:.3f}, {xy[1]:.3f}) mm")
     where = max(comm.allgather(where), key=len)
+    if problem.mould is not None and not where:
+        return (f"no position of the yarns fits the mould: {pen:.3g} mm of yarn remain beyond a platen; the "
+                f"cavity ({problem.mould.thickness:.4g} mm) is thinner than the yarns stacked in it (give a "
+                "larger mould thickness)")
     return (f"no position of the yarns keeps every contact: {pen:.3g} mm of penetration remain{where}; the "
             "stacking order of the model contradicts itself there (check the yarns' heights)")
 

@@ -2,12 +2,14 @@
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 import dolfinx
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.limits import MAX_ITERATIONS, check_count
 from textile_fenicsx.solver.linear import DIRECT_LDLT
 
-__all__ = ["METHODS", "PlateParameters", "Solution", "SolverOptions"]
+__all__ = ["METHODS", "Mould", "PlateParameters", "Solution", "SolverOptions"]
 
 METHODS = ("exact", "penalty")
 
@@ -39,6 +41,24 @@ class PlateParameters:
         if self.Db12 is None:
             object.__setattr__(self, "Db12", (self.Db1 + self.Db2) / 4)
         check_positive("Db12", self.Db12, allow_zero=True)
+
+
+@dataclass(frozen=True)
+class Mould:
+    """Two rigid platens, z = bottom and z = top [mm], that no yarn's surface may cross: a mould
+    cavity of thickness top - bottom (DESIGN.md 5, the mould)."""
+
+    bottom: float
+    top: float
+
+    def __post_init__(self):
+        if not (np.isfinite(self.bottom) and np.isfinite(self.top) and self.top > self.bottom):
+            raise TextileError(f"mould: the top platen (z = {self.top}) must lie above the bottom one "
+                               f"(z = {self.bottom})")
+
+    @property
+    def thickness(self) -> float:
+        return self.top - self.bottom
 
 
 @dataclass(frozen=True)

@@ -6,10 +6,11 @@ K0 the plates (each yarn's bending + tension on its submesh, reduced by the peri
 K0 = sum R_i^T A_i R_i), b0 their restoring force -A_i z0_i (and any load), E_c the
 contact energy of forms/contact.py. For the exact method E_c is quadratic (the apart spring) and
 joins the fixed part: K_fixed = K0 + sum T^T J T, b_fixed = b0 - sum T^T J g0.
-E does not change when every yarn rises by the same amount (without a foundation): the Newton
-matrices pin one unknown instead, so that they are symmetric positive definite (MUMPS' Cholesky
-without pivoting, whatever the interior point's weights), and the solution is shifted to zero
-mean afterwards.
+E does not change when every yarn rises by the same amount (without a foundation or a mould): the
+Newton matrices pin one unknown instead, so that they are symmetric positive definite (MUMPS'
+Cholesky without pivoting, whatever the interior point's weights), and the solution is shifted
+to zero mean afterwards. A mould holds that translation itself: every node has its platens'
+weights in the interior point's matrix, and nothing is pinned.
 `ContactProblem` owns the PETSc objects it makes (K, K_fixed, vectors, the direct solver) and
 frees them in `destroy()`.
 """
@@ -27,9 +28,9 @@ from textile_fenicsx.errors import TextileError
 from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.contact import (build_pairs, contact_nodes, gathered_unknowns, jacobian_values,
-                                            residual_values)
+                                            mould_rows, residual_values)
 from textile_fenicsx.solver.linear import DirectSolver, SolverError, mumps_error, negative_pivots, null_pivots
-from textile_fenicsx.solver.parameters import PlateParameters, SolverOptions
+from textile_fenicsx.solver.parameters import Mould, PlateParameters, SolverOptions
 from textile_fenicsx.solver.pattern import FixedPattern
 from textile_fenicsx.solver.periodic import Periodicity, seam_facet_tags
 
@@ -80,19 +81,24 @@ class ContactProblem:
 
     def __init__(self, ms: MidSurfaces, params: PlateParameters = PlateParameters(),
                  options: SolverOptions = SolverOptions(), loads: dict | None = None,
-                 foundation_stiffness: float = 0.0):
-        self.ms, self.params, self.options = ms, params, options
+                 foundation_stiffness: float = 0.0, mould: Mould | None = None):
+        self.ms, self.params, self.options, self.mould = ms, params, options, mould
         self.exact = options.method == "exact"
         if self.exact and params.Et == 0:
             raise TextileError("Et must be > 0 with the exact contact method: the spring where yarns are apart is "
                                "all that holds a yarn's height against its neighbours (the default is 1e-4 N/mm^3)")
+        if mould is not None and not self.exact:
+            raise TextileError("a mould needs the exact contact method (its platens are constraints)")
         self.comm = ms.V.mesh.comm
         self.numbering = numbering = Periodicity(ms)
         pattern = FixedPattern(self.comm, numbering.start, numbering.n_local)
         self.R, self.b_fixed = assemble_plates(ms, numbering, pattern, params, loads or {}, foundation_stiffness)
-        self._translation(foundation_stiffness)
-        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact)
-        self.nodes = contact_nodes(self.comm, self.pairs, need, numbering.image_dofs(ms)) if self.exact else None
+        self._translation(foundation_stiffness, mould is not None)
+        images = numbering.image_dofs(ms)
+        platens = None if mould is None else mould_rows(ms, numbering, images, mould)
+        extra = np.zeros(0, np.int64) if platens is None else platens.unknown
+        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact, extra)
+        self.nodes = contact_nodes(self.comm, self.pairs, need, images, platens) if self.exact else None
         if self.nodes is not None:
             nr, nc = self.nodes.pattern()
             rows, cols = np.concatenate([rows, nr]), np.concatenate([cols, nc])
@@ -109,11 +115,11 @@ class ContactProblem:
         self.solver = DirectSolver(self.comm, options.petsc)
         self.factorisations, self._convex_checked = 0, -1
 
-    def _translation(self, kf: float) -> None:
-        """The common vertical translation, the energy's null space when there is no foundation:
-        the net load is spread over the area (the reaction a constraint on the area-weighted mean
-        of w would give), unknown 0 is pinned in every Newton matrix (`pin`), and `displacements`
-        shifts the solution to zero mean."""
+    def _translation(self, kf: float, moulded: bool) -> None:
+        """The common vertical translation, the energy's null space when there is no foundation
+        and no mould: the net load is spread over the area (the reaction a constraint on the
+        area-weighted mean of w would give), unknown 0 is pinned in every Newton matrix (`pin`),
+        and `displacements` shifts the solution to zero mean."""
         m = self.numbering.vector()
         for y, R in zip(self.ms.yarns, self.R):
             mi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(ufl.TestFunction(y.V) * y.dx))
@@ -121,7 +127,7 @@ class ContactProblem:
             R.multTransposeAdd(mi, m, m)
             mi.destroy()
         self.area_weights, self.area = m, m.sum()
-        self.free_translation = not kf
+        self.free_translation = not kf and not moulded
         self.pin = 0 if self.free_translation else None
         if self.free_translation:
             self.b_fixed.axpy(-self.b_fixed.sum() / self.area, m)
@@ -148,9 +154,10 @@ class ContactProblem:
         vec.assemble()
 
     def gather(self, x: PETSc.Vec) -> np.ndarray:
-        """The unknowns the pairs need, on this rank (a copy)."""
+        """The unknowns the pairs and the mould need, on this rank, and a 0 after them (where a
+        platen's constraint reads the platen's displacement)."""
         self._gather.scatter(x, self._gathered, addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
-        return self._gathered.getArray(readonly=True).copy()
+        return np.append(self._gathered.getArray(readonly=True), 0.0)
 
     def gaps(self, x: PETSc.Vec) -> list[np.ndarray]:
         """Every pair's gap at x [mm] (ghost dofs included)."""
