@@ -14,8 +14,9 @@ from textile_fenicsx.errors import TextileError
 from textile_fenicsx.meshes.midsurface import mid_surfaces, plate_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, plate_mesh, projected_mesh
 from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.sections import Ellipse
-from textile_fenicsx.solver import ContactProblem, PlateParameters, SolverOptions, solve
+from textile_fenicsx.sections import Ellipse, Polygon
+from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, SolverOptions, solve, solve_problem
+from textile_fenicsx.solver.contact import NONE
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.verification import convergence_rates, solve_fibre_jump_plate
 from textile_fenicsx.weaves import build
@@ -98,9 +99,11 @@ def test_string_under_load():
     assert np.all(convergence_rates([0.5, 0.25, 0.125], errors) > 2.2)
 
 
-def crossing_strips(L=4.0, width=1.0, height=0.2):
-    """A yarn along x over a yarn along y, touching at the crossing (gap 0 at the centres)."""
-    section = ConstantSection(Ellipse(width, height))
+def crossing_strips(L=4.0, width=1.0, height=0.2, flat=False):
+    """A yarn along x over a yarn along y, touching at the crossing (gap 0 at the centres);
+    flat: rectangular sections (plates of uniform thickness), else ellipses."""
+    w, h = width / 2, height / 2
+    section = ConstantSection(Polygon([[-w, -h], [w, -h], [w, h], [-w, h]]) if flat else Ellipse(width, height))
     reps = [[L, 0, 0], [0, L, 0]]
     a = Yarn([[0, L / 2, height / 2], [L / 2, L / 2, height / 2], [L, L / 2, height / 2]], section, "linear",
              repeats=reps, name="upper")
@@ -147,6 +150,48 @@ def test_crossing_strips_pressed_together(crossing_mesh):
     assert exact.max_penetration <= 1e-6 < sols[1e5].max_penetration
     mean_exact = integral(exact.w[0], ms.yarns[0].dx)
     assert mean_exact == pytest.approx(-integral(exact.w[1], ms.yarns[1].dx), rel=1e-6)
+
+
+@pytest.mark.mpi
+def test_a_mould_holds_strips_pushed_apart_flat_on_its_platens():
+    # two flat strips (rectangular sections 1 x 0.2 mm: plates of uniform thickness) crossing,
+    # loaded apart (q up on the upper one, down on the lower) in a mould delta thicker than their
+    # stack on each side: each is pressed on its platen, its top there (no node beyond it). No net
+    # load: the two platens' forces (sums of the nodal forces) are equal, and each carries its
+    # strip's load q A less the pull of the apart spring, Et times the integral of the gap over the
+    # 1 x 1 mm crossing, where the gap is at least 2 delta and at most 0.3 mm (the strips' plate
+    # forces sum to zero over a translation: the strip's equilibrium). The strip is
+    # flat but for its edge band, one element (b = 0.125 mm) that the rays see thinner (the nodes on
+    # the edge sample it a little inside) and that no platen holds: a cantilever under q, which
+    # lifts it by at most q b^4 / (8 Db2) = 1.5e-6 mm
+    ms = mid_surfaces(projected_mesh(crossing_strips(flat=True), MeshOptions(0.25)))
+    comm, delta, q, params = MPI.COMM_WORLD, 0.05, 0.05, PlateParameters()
+    problem = ContactProblem(ms, params, loads={0: q, 1: -q}, mould=Mould(-0.2 - delta, 0.2 + delta))
+    sol = solve_problem(problem)
+    assert sol.converged, sol.reason
+    for w, y, side in zip(sol.w, ms.yarns, (1, -1)):
+        z, t = y.z0.x.array + w.x.array, y.t.x.array
+        outer = comm.allreduce(float(np.max(side * z + t / 2, initial=-np.inf)), op=MPI.MAX)
+        assert outer == pytest.approx(0.2 + delta, abs=1e-6)  # the penetration tolerance
+        bend = comm.allreduce(float(np.max(np.abs(side * z - (0.1 + delta)), initial=0.0)), op=MPI.MAX)
+        assert bend <= q * 0.125 ** 4 / (8 * params.Db2) + 1e-6, bend  # + the displacement tolerance
+    nodes, forces = problem.nodes, sol.unknowns[1]
+    platen = nodes.pair == NONE
+    top, bottom = (comm.allreduce(float(np.sum(forces[platen & side])), op=MPI.SUM)
+                   for side in (nodes.rows_u == NONE, nodes.rows_l == NONE))
+    assert top == pytest.approx(bottom, rel=1e-9)
+    load = q * integral(1.0 + 0 * sol.w[0], ms.yarns[0].dx)
+    assert params.Et * 2 * delta * 1.0 <= load - top <= params.Et * 0.3 * 1.0
+
+
+@pytest.mark.mpi
+def test_a_mould_thinner_than_the_stack_is_named():
+    ms = mid_surfaces(projected_mesh(crossing_strips(flat=True), MeshOptions(0.5)))
+    problem = ContactProblem(ms, mould=Mould(-0.19, 0.19))
+    sol = solve_problem(problem)
+    assert not sol.converged
+    assert "no position of the yarns keeps every contact inside the mould" in sol.reason
+    assert "the mould (0.38 mm) is thinner than the yarns stacked there" in sol.reason
 
 
 @pytest.mark.mpi

@@ -31,7 +31,8 @@ class Settings:
     """Everything a run was asked to do. mould: the thickness of the mould the fabric is solved in
     [mm] (its cavity centred on the model's mid-plane; it closes only on a fabric that comes out
     thicker), "auto" (the default) for the thickness the textile is woven to where it states one
-    (3D weaves: `Textile.thickness`), None for none."""
+    (3D weaves: `Textile.thickness`; no more than the model's own thickness as its plates' nodes
+    see it, so that what lies between the nodes stays inside too), None for none."""
 
     mesh: MeshOptions = MeshOptions()
     plate: PlateParameters = PlateParameters()
@@ -141,7 +142,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
         log.info("slopes: thickness changed by up to %.2f %%; margins widened by up to %.1e mm where the gap "
                  "dips between nodes; solving again", 100 * change, dip)
         first = solution
-        mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile))
+        mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile), settings.mould == "auto")
         solution = solve_problem(ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould),
                                  start=first)
         solution.iterations += first.iterations
@@ -175,17 +176,20 @@ def _extent(ms: MidSurfaces, w=None) -> tuple[float, float]:
     return comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)
 
 
-def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None) -> Mould | None:
-    """A mould of the given thickness centred on the model's mid-plane, if the solved plates w are
-    thicker than it (a mould that touches nothing holds nothing, and leaves the common translation
-    free: the solve then keeps its pin); else None."""
+def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None, at_most_initial: bool) -> Mould | None:
+    """A mould of the given thickness (at_most_initial: no thicker than the plates at the start)
+    centred on the model's mid-plane, if the solved plates w are thicker than it (a mould that
+    touches nothing holds nothing, and leaves the common translation free: the solve then keeps
+    its pin); else None."""
     if thickness is None:
         return None
+    lo0, hi0 = _extent(ms)
+    if at_most_initial:
+        thickness = min(thickness, hi0 - lo0)
     lo, hi = _extent(ms, w)
     if hi - lo <= thickness:
         log.info("mould: the fabric (%.4f mm) fits the mould's %.4f mm: it stays open", hi - lo, thickness)
         return None
-    lo0, hi0 = _extent(ms)
     mid = (lo0 + hi0) / 2
     log.info("mould: the fabric came out %.4f mm thick, the mould is %.4f mm: solving again between its "
              "platens (z = %.4f, %.4f mm)", hi - lo, thickness, mid - thickness / 2, mid + thickness / 2)

@@ -10,6 +10,7 @@ reference/README.md): mandatory yarn attributes, CDomainPlanes, and each yarn's 
 interpolation and sections (per-node polygons for corrected yarns).
 """
 
+import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -17,11 +18,13 @@ import numpy as np
 
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
-from textile_fenicsx.limits import (MAX_NODES, MAX_NODES_PER_YARN, MAX_POLYGON_POINTS, MAX_YARNS, check_file_size,
-                                    check_many)
+from textile_fenicsx.limits import (MAX_NODES, MAX_NODES_PER_YARN, MAX_POLYGON_POINTS, MAX_SIZE, MAX_YARNS, MIN_LENGTH,
+                                    check_file_size, check_many)
 from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
+
+log = logging.getLogger(__name__)
 
 INTERPOLATION_IN = {"CInterpolationBezier": "bezier", "CInterpolationCubic": "cubic",
                     "CInterpolationLinear": "linear"}
@@ -261,8 +264,7 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
     cell = _domain(el, yarns, where)
     try:
-        woven_to = (_attr(el, "FabricThickness", where)
-                    if el.get("type") in WOVEN_TO_THICKNESS and el.get("FabricThickness") is not None else None)
+        woven_to = _woven_to(el, where)
         textile = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to)
         textile.check_size()
         return textile
@@ -270,6 +272,19 @@ def read_tg3(path, textile: str | None = None) -> Textile:
         raise
     except TextileError as e:  # the yarns do not make a periodic textile in this domain, or too large
         raise FormatError(f"{where}: {e}") from None
+
+
+def _woven_to(el, where: str) -> float | None:
+    """A 3D weave's FabricThickness [mm], None for other textiles, or where it is no thickness
+    (TexGen leaves it unset, e.g. 2e-314, in an orthogonal weave built without SetThickness)."""
+    if el.get("type") not in WOVEN_TO_THICKNESS or el.get("FabricThickness") is None:
+        return None
+    value = _attr(el, "FabricThickness", where)
+    if not MIN_LENGTH <= value <= MAX_SIZE:
+        log.warning("%s: FabricThickness=%s is not a thickness; the fabric has no default mould", where,
+                    el.get("FabricThickness"))
+        return None
+    return value
 
 
 # --- writing ----------------------------------------------------------------------------------

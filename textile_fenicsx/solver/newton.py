@@ -214,10 +214,10 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
         where = (f" between {names[p.upper]} (yarn {p.upper}) above and {names[p.lower]} (yarn {p.lower}) below "
                  f"at ({xy[0]:.3f}, {xy[1]:.3f}) mm")
     where = max(comm.allgather(where), key=len)
-    if problem.mould is not None and not where:
-        return (f"no position of the yarns fits the mould: {pen:.3g} mm of yarn remain beyond a platen; the "
-                f"cavity ({problem.mould.thickness:.4g} mm) is thinner than the yarns stacked in it (give a "
-                "larger mould thickness)")
+    if problem.mould is not None:
+        return (f"no position of the yarns keeps every contact inside the mould: {pen:.3g} mm of penetration "
+                f"remain{where or ' at a platen'}; the mould ({problem.mould.thickness:.4g} mm) is thinner than the "
+                "yarns stacked there, or the stacking order of the model contradicts itself (give a thicker mould)")
     return (f"no position of the yarns keeps every contact: {pen:.3g} mm of penetration remain{where}; the "
             "stacking order of the model contradicts itself there (check the yarns' heights)")
 
