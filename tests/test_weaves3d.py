@@ -71,3 +71,19 @@ def test_only_3d_weaves_state_the_thickness_they_are_woven_to():
     assert load_model(MODELS["angle interlock"]).thickness == pytest.approx(1.92)
     # TexGen leaves it unset (2e-314) in an orthogonal weave built without SetThickness: no mould
     assert load_model(MODELS["ortho"]).thickness is None
+
+
+@pytest.mark.serial
+@pytest.mark.slow
+def test_a_binder_thicker_than_the_gap_between_weft_columns_is_diagnosed():
+    # TexGen's orthogonal weave with a 1.0 x 0.3 mm binder between weft columns 0.22 mm apart
+    # (spacing 2.8 mm, width 2.58 mm): its legs overlap the wefts' edges sideways in the input
+    # (0.12 mm deep), which plates that move yarns vertically cannot undo; the check fails and
+    # its messages say so, naming the leg
+    t = load_model(REPO / "reference" / "fabrics" / "ortho_w2f3_binder1.0x0.3.tg3")
+    r = run(t, Settings(MeshOptions(0.5)), comm=MPI.COMM_SELF)
+    assert r.converged, r.solution.reason
+    overlaps = [f["message"] for f in r.verdict["failures"] if f["check"].startswith("overlap")]
+    assert overlaps
+    for message in overlaps:
+        assert "in the input already, at the steep leg of yarn 5" in message, message

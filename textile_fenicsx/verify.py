@@ -79,6 +79,24 @@ def _has_legs(yarn) -> bool:
     return bool(steep_runs(yarn, 0.05))
 
 
+def _leg_hint(initial: Textile, pen0: dict, worst: dict | None) -> str:
+    """Why an overlap at a yarn's leg stays: the plates move yarns vertically only, and a leg (a
+    steep stretch, rebuilt from its crowns' ends) that overlaps its neighbours sideways in the
+    input keeps doing so (TexGen's orthogonal weave with a binder thicker than the gap between
+    the weft columns). "" unless the pair has a yarn with legs and overlapped before (at least a
+    quarter as deep)."""
+    if worst is None:
+        return ""
+    legs = [k for k in worst["yarns"] if _has_legs(initial.yarns[k])]
+    same = [p for p in pen0["pairs"] if sorted(p["yarns"]) == sorted(worst["yarns"])]
+    if not legs or not same or same[0]["max_depth"] < 0.25 * worst["max_depth"]:
+        return ""
+    return (f" (they overlapped {same[0]['max_depth']:.3g} mm deep in the input already, at the steep leg of "
+            f"{initial.yarns[legs[0]].name}: the plates move yarns vertically only, and a leg thicker than the "
+            "gap it passes through, e.g. a binder between weft columns, stays in its neighbours; give it room in "
+            "the model)")
+
+
 def _areas(polys: np.ndarray) -> np.ndarray:
     x, y = polys[..., 0], polys[..., 1]
     return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
@@ -103,7 +121,7 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
     allowed = tol.overlap * max(pen0["volume"], 1e-3 * h_min * initial.cell.area)
     worst = max(pen["pairs"], key=lambda p: p["max_depth"], default=None)
     where = (f"; deepest between {names[worst['yarns'][0]]} and {names[worst['yarns'][1]]} at "
-             f"({worst['at'][0]:.3f}, {worst['at'][1]:.3f}) mm" if worst else "")
+             f"({worst['at'][0]:.3f}, {worst['at'][1]:.3f}) mm" if worst else "") + _leg_hint(initial, pen0, worst)
     if pen["volume"] > allowed:
         verdict["failures"].append({"check": "overlap volume", "value": pen["volume"], "limit": allowed,
                                     "message": f"the corrected yarns overlap by {pen['volume']:.4g} mm^3 (before "
