@@ -142,6 +142,23 @@ def test_empty_footprint_is_named():
 # --- 3. solver --------------------------------------------------------------------------------
 
 @pytest.mark.serial
+def test_a_mould_thinner_than_the_fabric_exits_1_naming_it(tmp_path):
+    # TexGen's plain weave stacks two yarns 0.3 mm thick where they cross: a 0.3 mm mould cannot
+    # hold them apart
+    out = tmp_path / "run"
+    run = cli("solve", REPO / "reference" / "models" / "plain.tg3", "--seed", 1.0, "--mould", 0.3, "--out", out)
+    assert run.returncode == 1
+    assert "no position of the yarns keeps every contact inside the mould" in run.stderr
+    assert "the mould (0.3 mm) is thinner than the yarns stacked there" in run.stderr
+    assert leftovers(out) == ["FAILED", "log.json"]
+    bad = cli("solve", "plain", "--mould", "thin", "--out", tmp_path / "bad")
+    assert bad.returncode == 2 and "expected auto, none or a thickness in mm, got 'thin'" in bad.stderr
+    penalty = cli("solve", "plain", "--mould", 1.0, "--method", "penalty", "--out", tmp_path / "bad")
+    assert penalty.returncode == 2 and "a mould needs the exact contact method" in penalty.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+
+@pytest.mark.serial
 def test_cap_reached_exits_1_and_marks_the_folder_failed(tmp_path):
     out = tmp_path / "run"
     run = cli("solve", "plain", "--seed", 1.0, "--max-iterations", 2, "--out", out)
