@@ -55,8 +55,10 @@ def test_texgen_3d_weave_solves_and_passes_its_check(name):
     # under one weft column and over the next, pushes the first up and the second down as its
     # tension straightens it (1.922 -> 2.24 and 1.920 -> 2.01 mm without a mould), and the default
     # mould, the thickness TexGen wove them to (FabricThickness 1.92 mm) or the initial one as the
-    # plates' nodes see it if less, holds them
-    assert after["thickness"] <= before["thickness"]
+    # plates' nodes see it if less, holds them (to what the surfaces resolve between the plates'
+    # nodes and the correction's stations: the check's depth tolerance, 1 % of the thinnest yarn;
+    # measured at seed 0.5: -0.1 to -0.6 um on four TexGen 3D weaves, +0.35 um on l2l_w3f4_b2_0121)
+    assert after["thickness"] <= before["thickness"] + 0.01 * h_min
     assert (r.mould is None) == (name == "ortho")
     if r.mould is not None:  # the woven thickness, as the plates' nodes see the model (a little less)
         assert 1.915 <= r.mould.thickness <= 1.92
