@@ -5,9 +5,9 @@ that holds yarns together where they are apart) is quadratic, the constraints g_
 (x_u - x_l)_i >= 0 (a mould's: g_i = g0_i +- x_i, a platen in one yarn's place) are linear: a
 convex QP, solved by a primal-dual interior-point method (Mehrotra's predictor-corrector) with
 nodal slacks s and forces lam. Every step follows a smooth central path s lam = mu -> 0: nothing
-in it is a discrete decision, so round-off cannot switch
-it between branches (active-set methods flip nodes that sit at zero gap with zero force, and on
-plates whole contact areas are like that: the pressure gathers at their edges) and the same
+in it is a discrete decision, so round-off cannot switch it between branches (active-set
+methods flip nodes that sit at zero gap with zero force, and on plates whole contact areas are
+like that: the pressure gathers at their edges) and the same
 problem takes the same steps on any partition and under any load. It stops when a step that the
 boundary did not cut short moves no point by more than displacement_tol and no node penetrates by
 more than penetration_tol.
