@@ -8,7 +8,7 @@ import xml.etree.ElementTree as ET
 import meshio
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from textile_fenicsx.config import load_model, save_model
@@ -229,11 +229,15 @@ def test_bad_toml_is_named(text, message, tmp_path):
 @settings(max_examples=25, deadline=None, suppress_health_check=SUPPRESS)
 @given(spacing=st.floats(1.0, 4.0), fill=st.floats(0.5, 1.0), aspect=st.floats(0.05, 0.25),
        over=st.integers(1, 3), under=st.integers(1, 3))
+@example(spacing=1.0, fill=0.5246737015756867, aspect=0.25, over=1, under=3)
 def test_twill_builder_volume_is_section_area_times_length(spacing, fill, aspect, over, under):
     # Any valid twill: the warp volume in the cell equals its section's polygon area times its
     # centreline length (within the grid's error), and every warp and weft interlaces. (A tube's
     # volume is area x length only while the path's radius of curvature exceeds the half-height:
-    # heights up to a quarter of the spacing; at half the spacing the tube folds on itself.)
+    # heights up to a quarter of the spacing; at half the spacing the tube folds on itself.) The
+    # grid resolves the yarn: 40 steps across its width keep the midpoint rule's error (at the
+    # section's thin edges) under 0.4 % on 60 random twills; a fixed 160 x 160 grid left 1.07 % on
+    # a 1/3 twill of 0.52 mm wide yarns in a 4 mm cell (hypothesis found it; 0.07 % at 320)
     height = aspect * spacing
     t = build("twill", over=over, under=under, spacing=spacing, width=fill * spacing, height=height)
     t.resolution = type(t.resolution)(spacing=0.1, section_points=48)
@@ -241,7 +245,7 @@ def test_twill_builder_volume_is_section_area_times_length(spacing, fill, aspect
     from textile_fenicsx.sections import polygon_area
 
     expected = polygon_area(y.section.section.points(48)) * y.length()
-    xy, dA = t.cell.grid(160)
+    xy, dA = t.cell.grid(int(np.ceil(40 * max(t.cell.lx, t.cell.ly) / (fill * spacing))))
     col = t.columns(xy, yarns=[0])
     assert np.sum(col.top - col.bottom) * dA == pytest.approx(expected, rel=0.01)
 
