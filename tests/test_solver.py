@@ -444,3 +444,56 @@ def test_slope_thickness_grows_with_the_slope_and_never_thins():
             assert change == pytest.approx(np.sqrt(1 + 4 * (A * k) ** 2) / np.sqrt(1 + (A * k) ** 2) - 1, rel=0.02)
         else:
             assert change == 0.0
+
+
+@pytest.mark.mpi
+def test_factors_kept_on_disk_give_the_same_solution(crossing_mesh):
+    # out_of_core only moves MUMPS' factors to disk (ICNTL(22) = 1): the same factorisation, the
+    # same steps, the same solution to round-off
+    in_core = _press(crossing_mesh, 1e3, "exact")
+    problem = ContactProblem(crossing_mesh, PlateParameters(Ec=1e3), SolverOptions(out_of_core=True),
+                             loads={0: -0.05, 1: 0.05})
+    problem.newton_matrix()
+    assert problem.solver.ksp.getPC().getFactorMatrix().getMumpsIcntl(22) == 1
+    on_disk = solve_problem(problem)
+    assert on_disk.converged and on_disk.iterations == in_core.iterations
+    assert _distance(in_core, on_disk, crossing_mesh) < 1e-12
+
+
+@pytest.mark.mpi
+def test_the_fixed_pattern_sums_entries_as_a_sparse_matrix_does():
+    # FixedPattern routes (row, column, value) given on any rank to the row's owner and sums
+    # repeats; its matrix must equal the dense sum of every triplet, and hold every variable
+    # (row, column) in its pattern even where the sum is 0 (a contact entry that is 0 now)
+    from textile_fenicsx.solver.pattern import FixedPattern
+
+    comm, n = MPI.COMM_WORLD, 37
+    rng = np.random.default_rng(7 + comm.rank)
+    bounds = np.linspace(0, n, comm.size + 1).astype(int)
+    start, n_local = bounds[comm.rank], bounds[comm.rank + 1] - bounds[comm.rank]
+    pattern = FixedPattern(comm, start, n_local)
+    fixed = []
+    for _ in range(3):  # like the plates: one call per yarn, repeats within and across calls
+        r, c = rng.integers(0, n, 200), rng.integers(0, n, 200)
+        v = rng.normal(size=200)
+        pattern.add_fixed(r, c, v)
+        fixed.append((r, c, v))
+    vr, vc = rng.integers(0, n, 150), rng.integers(0, n, 150)
+    vv = rng.normal(size=150)
+    vv[:10] = 0.0
+    pattern.freeze(vr, vc)
+    A = pattern.matrix()
+    pattern.fill(A, vv)
+    dense, where = np.zeros((n, n)), np.zeros((n, n), bool)
+    for part in comm.allgather((fixed, (vr, vc, vv))):
+        for r, c, v in part[0] + [part[1]]:
+            np.add.at(dense, (r, c), v)
+        where[part[1][0], part[1][1]] = True
+    indptr, indices, values = A.getValuesCSR()
+    got, held = np.zeros((n_local, n)), np.zeros((n_local, n), bool)
+    rows = np.repeat(np.arange(n_local), np.diff(indptr))
+    got[rows, indices] = values
+    held[rows, indices] = True
+    assert np.allclose(got, dense[start:start + n_local], rtol=0, atol=1e-12)
+    assert np.all(held[where[start:start + n_local]])
+    A.destroy()

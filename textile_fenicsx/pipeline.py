@@ -122,7 +122,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     if split.any:
         log.info("legs: %s cut into crowns where steeper than %g", ", ".join(
             sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})), STEEP)
-    projected = projected_mesh(split.plate, settings.mesh, comm)
+    projected = projected_mesh(split.plate, settings.mesh, comm, settings.solver.bytes_per_dof)
     times["mesh"] = time.perf_counter() - t
     t = time.perf_counter()
     ms = mid_surfaces(projected)
@@ -135,6 +135,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     times["assemble"] = time.perf_counter() - t
     t = time.perf_counter()
     solution = solve_problem(problem)
+    del problem  # its arrays (pattern, pairs: ~1 kB per dof) are not needed by the second solve
     if solution.converged:  # once more with the thickness the new slopes give (slopes.py), and
         # margins that keep the gap field >= 0 between the nodes as well
         dip = widen_margins(ms, solution.w)
