@@ -77,6 +77,8 @@ class MeshOptions:
 # 1 and 2 ranks 5.8 and 7.5 kB per dof, 1.3e6 dofs on 2 ranks 6.9 kB per dof, with MUMPS' factors
 # and the outputs), and per process.
 BYTES_PER_DOF = 8e3
+# the same with MUMPS' factors on disk (SolverOptions.out_of_core)
+BYTES_PER_DOF_OUT_OF_CORE = 6e3
 BYTES_PER_RANK = 0.3e9
 
 
@@ -105,11 +107,13 @@ def estimated_dofs(textile: Textile, seed: float, repeats: tuple[int, int] = (1,
     return int(4.6 * area * repeats[0] * repeats[1] / seed**2)
 
 
-def check_memory(textile: Textile, options: "MeshOptions", ranks: int, repeats: tuple[int, int] = (1, 1)) -> None:
+def check_memory(textile: Textile, options: "MeshOptions", ranks: int, repeats: tuple[int, int] = (1, 1),
+                 bytes_per_dof: float = BYTES_PER_DOF) -> None:
     """Refuse, before meshing (and before tiling a coupon of `repeats` unit cells), a seed whose
-    run would need more memory than the limit."""
+    run would need more memory than the limit (bytes_per_dof: BYTES_PER_DOF, or
+    BYTES_PER_DOF_OUT_OF_CORE for a solve with MUMPS' factors on disk)."""
     dofs = estimated_dofs(textile, options.seed, repeats)
-    need = dofs * BYTES_PER_DOF + ranks * BYTES_PER_RANK
+    need = dofs * bytes_per_dof + ranks * BYTES_PER_RANK
     limit = available_memory() if options.memory_limit is None else options.memory_limit * 1e9
     if need > limit:
         which = "the memory limit you gave" if options.memory_limit is not None else "the memory available now"
@@ -595,9 +599,10 @@ def release_freed_memory() -> None:
 
 
 def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
-                   comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
-    """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm`."""
-    check_memory(textile, options, comm.size)
+                   comm: MPI.Comm = MPI.COMM_WORLD, bytes_per_dof: float = BYTES_PER_DOF) -> ProjectedMesh:
+    """Mesh the cell by yarn coverage (gmsh on rank 0), distributed over `comm` (after the memory
+    guard, check_memory, with the run's bytes per dof)."""
+    check_memory(textile, options, comm.size, bytes_per_dof=bytes_per_dof)
     warnings = check_slopes(textile, options)
     return _mesh(textile, textile.cell, options, comm, warnings)
 

@@ -369,14 +369,18 @@ def test_too_many_master_nodes_are_refused(n, message, tmp_path):
 
 @pytest.mark.serial
 @pytest.mark.slow
-def test_the_memory_guard_covers_what_the_bench_measures(tmp_path):
+@pytest.mark.parametrize("factors", ["in memory", "out of core"])
+def test_the_memory_guard_covers_what_the_bench_measures(tmp_path, factors):
     # The guard (check_memory) refuses a seed whose run would need more than the machine has,
-    # from the estimated dofs x BYTES_PER_DOF + BYTES_PER_RANK, constants read off `make bench`.
+    # from the estimated dofs x BYTES_PER_DOF + BYTES_PER_RANK, constants read off `make bench`
+    # (BYTES_PER_DOF_OUT_OF_CORE with MUMPS' factors on disk, --out-of-core).
     # The bench's own record of a small coupon (84 000 dofs, its own process): the guard's need
     # covers the peak resident set, and is not so pessimistic (4x) that it refuses runs that fit.
-    from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_RANK
+    from textile_fenicsx.meshes import projected
 
-    name = "satin4 2x2 0.25"
+    BYTES_PER_RANK = projected.BYTES_PER_RANK
+    BYTES_PER_DOF = projected.BYTES_PER_DOF if factors == "in memory" else projected.BYTES_PER_DOF_OUT_OF_CORE
+    name = "satin4 2x2 0.25" + ("" if factors == "in memory" else " out of core")
     proc = subprocess.run([sys.executable, str(REPO / "bench" / "bench.py"), "--case", name], capture_output=True,
                           text=True, timeout=600, env={**os.environ, "TEXTILE_FENICSX_BENCH_TMP": str(tmp_path)})
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -465,6 +469,22 @@ def test_memory_estimate_of_any_coupon_is_quick():
     coupon = tile(unit, 8, 8)
     assert estimated_dofs(coupon, 0.5) == pytest.approx(64 * estimated_dofs(unit, 0.5), rel=1e-3)
     assert time.perf_counter() - start < 10
+
+
+@pytest.mark.serial
+def test_factors_on_disk_let_the_guard_take_a_larger_coupon(tmp_path):
+    # --out-of-core: the guard assumes BYTES_PER_DOF_OUT_OF_CORE per dof. A memory limit between
+    # the two needs of a 2 x 2 crowfoot satin coupon: refused with the factors in memory, solved
+    # with them on disk
+    from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
+
+    dofs = estimated_dofs(build("crowfoot_satin"), 1.0, (2, 2))
+    limit = (dofs * (BYTES_PER_DOF + BYTES_PER_DOF_OUT_OF_CORE) / 2 + BYTES_PER_RANK) / 1e9
+    args = ["solve", "crowfoot_satin", "--seed", "1.0", "--repeat", "2", "2", "--memory-limit", f"{limit:.6f}"]
+    refused(args + ["--out", tmp_path / "in_memory"], "would give about", tmp_path)
+    run = cli(*args, "--out-of-core", "--no-figures", "--out", tmp_path / "on_disk")
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert json.loads((tmp_path / "on_disk" / "metrics.json").read_text())["verdict"]["passed"]
 
 
 @pytest.mark.serial

@@ -180,11 +180,11 @@ def _solve(args) -> int:
         mesh=MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit),
         plate=PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et),
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
-                             penetration_tol=args.penetration_tol),
+                             penetration_tol=args.penetration_tol, out_of_core=args.out_of_core),
         correction=CorrectionOptions(), mould=args.mould)
     _check_repeat(args)
     t = time.perf_counter()
-    textile = _repeated(load_input(args.input), args, settings.mesh, comm.size)
+    textile = _repeated(load_input(args.input), args, settings.mesh, comm.size, settings.solver.bytes_per_dof)
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
     claim = claim_output(args.out, inputs=inputs, names=RESULT_NAMES + FAILED_NAMES, force=args.force, comm=comm)
@@ -224,7 +224,7 @@ def _check_repeat(args) -> None:
         limits.check_count(f"coupon repeats {label} (--repeat)", n, 1, limits.MAX_REPEATS)
 
 
-def _repeated(textile, args, mesh=None, ranks: int = 1):
+def _repeated(textile, args, mesh=None, ranks: int = 1, bytes_per_dof: float | None = None):
     """The model, or its nx x ny coupon when --repeat was given (with free edges if asked). With
     mesh options, the coupon's memory is estimated from the unit cell first (quick for any
     coupon), and a coupon too large for the memory is refused before it is built."""
@@ -234,9 +234,9 @@ def _repeated(textile, args, mesh=None, ranks: int = 1):
     from textile_fenicsx.coupon import tile
 
     if mesh is not None:
-        from textile_fenicsx.meshes.projected import check_memory
+        from textile_fenicsx.meshes.projected import BYTES_PER_DOF, check_memory
 
-        check_memory(textile, mesh, ranks, tuple(args.repeat))
+        check_memory(textile, mesh, ranks, tuple(args.repeat), bytes_per_dof or BYTES_PER_DOF)
     return tile(textile, *args.repeat, free_edges=args.free_edges)
 
 
@@ -382,6 +382,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--penetration-tol", type=float, default=1e-6,
                    help="exact method: penetration and complementarity tolerance at the nodes [mm] (1e-6)")
     p.add_argument("--max-iterations", type=int, default=100, help="cap on contact iterations (100)")
+    p.add_argument("--out-of-core", action="store_true",
+                   help="MUMPS keeps its factors on disk ($MUMPS_OOC_TMPDIR, else /tmp): less memory for large "
+                   "coupons (README, Performance), somewhat slower")
     p.add_argument("--mould", type=_mould, default="auto", metavar="auto|none|T",
                    help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "

@@ -7,7 +7,8 @@ import numpy as np
 import dolfinx
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.limits import MAX_ITERATIONS, check_count
-from textile_fenicsx.solver.linear import DIRECT_LDLT
+from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE
+from textile_fenicsx.solver.linear import DIRECT_LDLT, OUT_OF_CORE
 
 __all__ = ["METHODS", "Mould", "PlateParameters", "Solution", "SolverOptions"]
 
@@ -70,7 +71,9 @@ class SolverOptions:
     max_iterations: cap on Newton steps. Exact method: penetration_tol [mm], the largest
     penetration left at a node; displacement_tol [mm], the largest move of the last step (the
     distance to the exact minimiser is of that order). petsc: options of the linear solves (a
-    plain dict, written under the solver's own prefix only while it is read).
+    plain dict, written under the solver's own prefix only while it is read). out_of_core: MUMPS
+    keeps its factors on disk (OUT_OF_CORE, in $MUMPS_OOC_TMPDIR or /tmp), for coupons larger than
+    the memory: the memory guard then assumes BYTES_PER_DOF_OUT_OF_CORE instead of BYTES_PER_DOF.
     """
 
     method: str = "exact"
@@ -78,6 +81,7 @@ class SolverOptions:
     penetration_tol: float = 1e-6
     displacement_tol: float = 1e-6
     petsc: dict = field(default_factory=lambda: dict(DIRECT_LDLT))
+    out_of_core: bool = False
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -85,6 +89,16 @@ class SolverOptions:
         check_count("max_iterations", self.max_iterations, 1, MAX_ITERATIONS)
         check_positive("penetration_tol", self.penetration_tol)
         check_positive("displacement_tol", self.displacement_tol)
+
+    @property
+    def linear_options(self) -> dict:
+        """The PETSc options of the linear solves (petsc, with OUT_OF_CORE when asked)."""
+        return {**self.petsc, **OUT_OF_CORE} if self.out_of_core else dict(self.petsc)
+
+    @property
+    def bytes_per_dof(self) -> float:
+        """The memory a run needs per unknown [bytes] (measured by `make bench`), for the guard."""
+        return BYTES_PER_DOF_OUT_OF_CORE if self.out_of_core else BYTES_PER_DOF
 
 
 @dataclass

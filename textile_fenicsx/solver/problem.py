@@ -112,7 +112,7 @@ class ContactProblem:
             self._spring = [jacobian_values(p, g) for p, g in zip(self.pairs, g0)]
             pattern.fill(self.K_fixed, self._variable(self._spring, 0.0))
             self._add_contact(self.b_fixed, [-residual_values(p, g) for p, g in zip(self.pairs, g0)])
-        self.solver = DirectSolver(self.comm, options.petsc)
+        self.solver = DirectSolver(self.comm, options.linear_options)
         self.factorisations, self._convex_checked = 0, -1
 
     def _translation(self, kf: float, moulded: bool) -> None:
