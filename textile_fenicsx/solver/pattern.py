@@ -70,6 +70,10 @@ class FixedPattern:
         out += self.base  # in place: on a coupon each array of this size is 0.2 GB per rank
         return out.astype(PETSc.ScalarType, copy=False)
 
+    def absorb(self, variable: np.ndarray) -> None:
+        """Make variable values (in freeze's order) part of the constant part for good."""
+        self.base = self.values(variable).astype(np.float64, copy=False)
+
     def matrix(self) -> PETSc.Mat:
         """A new symmetric AIJ matrix with this pattern and the constant values."""
         A = PETSc.Mat().createAIJ(((self.n_local, self.n_cols),) * 2, comm=self.comm)
@@ -108,17 +112,21 @@ class FixedPattern:
         return scipy.sparse.coo_matrix((vals, (rows - self.start, cols)), shape=(self.n_local, self.n_cols)).tocsr()
 
     def _plan(self, rows: np.ndarray):
+        """How to send entries to their rows' owners: the order that groups them by owner (None
+        on one rank), and the counts sent to and received from each rank."""
+        if self.comm.size == 1:
+            return None, np.array([len(rows)], np.int64), np.array([len(rows)], np.int64)
         owner = np.searchsorted(self.starts, rows, side="right") - 1
-        order = np.argsort(owner, kind="stable").astype(np.int64)
+        order = np.argsort(owner, kind="stable").astype(np.int32 if len(rows) < 2**31 else np.int64)
         send = np.bincount(owner, minlength=self.comm.size).astype(np.int64)
         recv = np.array(self.comm.alltoall(send.tolist()), dtype=np.int64)
         return order, send, recv
 
     def _route(self, plan, data: np.ndarray) -> np.ndarray:
         order, send, recv = plan
-        data = data[order]
-        if self.comm.size == 1:
+        if order is None:
             return data
+        data = data[order]
         out = np.empty(int(recv.sum()), dtype=data.dtype)
         sd = np.concatenate(([0], np.cumsum(send)[:-1]))
         rd = np.concatenate(([0], np.cumsum(recv)[:-1]))

@@ -106,12 +106,16 @@ class ContactProblem:
         numbering.release()
         self.pattern, self.need = pattern, need
         self._gather, self._gathered = gathered_unknowns(self.b_fixed, need)
-        self.K, self.K_fixed = pattern.matrix(), pattern.matrix()
-        if self.exact:  # the apart spring is quadratic: it joins the fixed part
-            g0 = self.gaps(numbering.vector())
-            self._spring = [jacobian_values(p, g) for p, g in zip(self.pairs, g0)]
-            pattern.fill(self.K_fixed, self._variable(self._spring, 0.0))
+        if self.exact:  # the apart spring is quadratic: it joins the fixed part (K_fixed, b_fixed)
+            zero = numbering.vector()
+            g0 = self.gaps(zero)
+            zero.destroy()
+            spring = [jacobian_values(p, g) for p, g in zip(self.pairs, g0)]
+            self._pair_entries = int(sum(len(s) for s in spring))
+            pattern.absorb(self._variable(spring, 0.0))
+            del spring
             self._add_contact(self.b_fixed, [-residual_values(p, g) for p, g in zip(self.pairs, g0)])
+        self.K, self.K_fixed = pattern.matrix(), pattern.matrix()
         self.solver = DirectSolver(self.comm, options.linear_options)
         self.factorisations, self._convex_checked = 0, -1
 
@@ -190,7 +194,10 @@ class ContactProblem:
     def newton_matrix(self, g: list[np.ndarray] | None = None, c_nodes=0.0) -> PETSc.Mat:
         """K = K0 + the contact Jacobian (the spring, or the penalty's at gaps g) + C^T diag(c_nodes) C,
         factorised."""
-        jac = self._spring if self.exact else [jacobian_values(p, gp) for p, gp in zip(self.pairs, g)]
+        if self.exact:  # the spring is in the constant part already
+            jac = [np.zeros(self._pair_entries)]
+        else:
+            jac = [jacobian_values(p, gp) for p, gp in zip(self.pairs, g)]
         self.pattern.fill(self.K, self._variable(jac, c_nodes), pin=self.pin)
         self.K.setOption(PETSc.Mat.Option.SPD, True)  # pinned: MUMPS' SPD LDL^T (SYM = 1); new values reset it
         self.solver.factor(self.K)
