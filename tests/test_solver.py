@@ -497,3 +497,26 @@ def test_the_fixed_pattern_sums_entries_as_a_sparse_matrix_does():
     assert np.allclose(got, dense[start:start + n_local], rtol=0, atol=1e-12)
     assert np.all(held[where[start:start + n_local]])
     A.destroy()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("name", ["plain", "crowfoot_satin"])
+def test_a_warm_start_takes_fewer_steps_than_a_cold_one_to_the_same_answer(name):
+    # The pipeline's second solve (plates thickened to their slopes) starts from the first's
+    # unknowns and forces. The minimiser is unique (a strictly convex QP), so warm and cold starts
+    # agree within the stopping tolerances (1e-6 mm each); a warm start is worth having only if
+    # it is shorter. Its slacks were once set to 1e-5 mm at nodes the thicker plates penetrate by
+    # 3.6 um: 23 steps against a cold start's 16 on the crowfoot satin (plain: 14 and 14)
+    from textile_fenicsx.meshes.midsurface import widen_margins
+    from textile_fenicsx.slopes import slope_thickness
+
+    ms = mid_surfaces(projected_mesh(build(name), MeshOptions(0.5)))
+    first = solve_problem(ContactProblem(ms))
+    widen_margins(ms, first.w)
+    assert slope_thickness(ms, first.w) > 0.01  # the second problem differs from the first
+    warm = solve_problem(ContactProblem(ms), start=first)
+    cold = solve_problem(ContactProblem(ms))
+    assert warm.converged and cold.converged
+    assert warm.iterations < cold.iterations
+    worst = max(float(np.max(np.abs(a.x.array - b.x.array), initial=0.0)) for a, b in zip(warm.w, cold.w))
+    assert MPI.COMM_WORLD.allreduce(worst, op=MPI.MAX) < 1e-5
