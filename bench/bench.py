@@ -57,77 +57,71 @@ def _rss_mb() -> float:
 
 
 def one_case(name: str) -> dict:
-    """Run one case stage by stage in this process (collective); rank 0 returns the record."""
+    """Run one case in this process (collective), stage by stage: the pipeline as `solve` runs it
+    (its stages reported by pipeline.run's on_stage), then the metrics and the core outputs;
+    rank 0 returns the record."""
     from mpi4py import MPI
 
     from textile_fenicsx.config import load_model
-    from textile_fenicsx.correct import corrected_textile
     from textile_fenicsx.coupon import tile
-    from textile_fenicsx.meshes.midsurface import mid_surfaces
-    from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
-    from textile_fenicsx.pipeline import Run, Settings
-    from textile_fenicsx.solver import ContactProblem, SolverOptions, solve_problem
+    from textile_fenicsx.meshes.projected import MeshOptions
+    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.solver import SolverOptions
     from textile_fenicsx.weaves import build
 
     comm = MPI.COMM_WORLD
     model, seed, repeats, method, _ = CASES[name]
     times, memory, peaks = {}, {}, {}
-    current = ["model"]
+    current = [None, 0.0]  # the stage, when it began
 
     def sample():  # the largest resident set seen during each stage, every 20 ms
         while True:
-            peaks[current[0]] = max(peaks.get(current[0], 0.0), _rss_mb())
+            if current[0] is not None:
+                peaks[current[0]] = max(peaks.get(current[0], 0.0), _rss_mb())
             time.sleep(0.02)
 
     threading.Thread(target=sample, daemon=True).start()
     settings = Settings(MeshOptions(seed), solver=SolverOptions(method=method.split()[0],
                                                                 out_of_core=method.endswith("out of core")))
 
-    def stage(label, f):
+    def begin(label):
+        """End the current stage (its time, the resident set summed over ranks) and begin `label`."""
         comm.barrier()
-        current[0] = label
-        t = time.perf_counter()
-        value = f()
-        comm.barrier()
-        time.sleep(0.05)  # one more sample of this stage
-        times[label] = time.perf_counter() - t
-        memory[label] = comm.allreduce(_rss_mb(), op=MPI.SUM)
-        if comm.rank == 0:
-            print(f"  {name}: {label} {times[label]:.2f} s, {memory[label]:.0f} MB", file=sys.stderr, flush=True)
-        return value
+        if current[0] is not None:
+            time.sleep(0.05)  # one more sample of this stage
+            done = current[0]
+            times[done] = time.perf_counter() - current[1]
+            memory[done] = comm.allreduce(_rss_mb(), op=MPI.SUM)
+            if comm.rank == 0:
+                print(f"  {name}: {done} {times[done]:.2f} s, {memory[done]:.0f} MB", file=sys.stderr, flush=True)
+        current[:] = [label, time.perf_counter()]
 
-    def read():
-        t = load_model(SATIN) if model == "satin4" else build("orthogonal")
-        return tile(t, *repeats[:2], free_edges="free" in repeats) if repeats else t
-
-    textile = stage("model", read)
-    projected = stage("mesh", lambda: projected_mesh(textile, settings.mesh, comm, settings.solver.bytes_per_dof))
-    ms = stage("midsurfaces", lambda: (mid_surfaces(projected), release_freed_memory())[0])
-    problem = stage("assemble", lambda: (ContactProblem(ms, settings.plate, settings.solver), release_freed_memory())[0])
-    solution = stage("solve", lambda: solve_problem(problem))
-    del problem  # as the pipeline does: its arrays are not needed after the solve
-    corrected = stage("correct", lambda: corrected_textile(textile, solution.w,
-                                                           settings.correction.station_spacing(seed),
-                                                           settings.correction.section_points))
-    result = Run(textile, settings, ms, solution, corrected)
+    begin("model")
+    textile = load_model(SATIN) if model == "satin4" else build("orthogonal")
+    textile = tile(textile, *repeats[:2], free_edges="free" in repeats) if repeats else textile
+    result = run(textile, settings, comm, on_stage=begin)
     out = Path(os.environ.get("TEXTILE_FENICSX_BENCH_TMP", "/tmp")) / f"bench_{os.getpid() if comm.rank == 0 else 0}"
     out = Path(comm.bcast(str(out), root=0))
-    stage("metrics", lambda: result.metrics)
-    stage("export", lambda: result.write(out / "core", figures=False, fields=False, surfaces=False))
+    begin("metrics")
+    result.metrics
+    begin("export")
+    result.write(out / "core", figures=False, fields=False, surfaces=False)
     if repeats is None:  # coupons: the surfaces of every yarn copy take minutes, skipped
-        stage("extras", lambda: result.write(out / "full", figures=False))
-    else:
-        times["extras"] = float("nan")
+        begin("extras")
+        result.write(out / "full", figures=False)
+    begin(None)
+    times.setdefault("extras", float("nan"))
     if comm.rank == 0:
         import shutil
 
         shutil.rmtree(out, ignore_errors=True)
+    ms, solution = result.midsurfaces, result.solution
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     core = ("model", "mesh", "midsurfaces", "assemble", "solve", "correct", "metrics", "export")
     return {
         "case": name, "ranks": comm.size, "seed": seed, "repeats": repeats, "method": method,
         "dofs": int(sum(y.V.dofmap.index_map.size_global for y in ms.yarns)),
-        "cells": int(projected.stats["cells"]), "iterations": solution.iterations,
+        "cells": int(ms.projected.stats["cells"]), "iterations": solution.iterations,
         "converged": bool(solution.converged), "verdict": bool(result.verdict["passed"]),
         "time_s": {**{k: times[k] for k in core}, "end_to_end": sum(times[k] for k in core),
                    "extras": times["extras"]},

@@ -5,6 +5,7 @@ first use, and `write` makes the output folder."""
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -113,10 +114,14 @@ class Run:
         return write_run(self, out, figures=figures, fields=fields, surfaces=surfaces)
 
 
-def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.COMM_WORLD) -> Run:
+def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.COMM_WORLD,
+        on_stage: Callable[[str], None] | None = None) -> Run:
     """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
-    and correct the textile (collective over comm)."""
+    and correct the textile (collective over comm). on_stage(name) is called as each stage begins
+    (mesh, midsurfaces, assemble, solve, correct), on every rank (the bench measures them so)."""
     times, mould = {}, None
+    begin = on_stage or (lambda name: None)
+    begin("mesh")
     start = t = time.perf_counter()
     split = split_steep(textile, settings.mesh.seed / 2)  # binder legs are not plates (legs.py)
     if split.any:
@@ -124,15 +129,18 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
             sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})), STEEP)
     projected = projected_mesh(split.plate, settings.mesh, comm, settings.solver.bytes_per_dof)
     times["mesh"] = time.perf_counter() - t
+    begin("midsurfaces")
     t = time.perf_counter()
     ms = mid_surfaces(projected)
     release_freed_memory()
     times["midsurfaces"] = time.perf_counter() - t
+    begin("assemble")
     t = time.perf_counter()
     loads = leg_loads(split, ms, settings.plate.sigma1, settings.mesh.seed)
     problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads)
     release_freed_memory()
     times["assemble"] = time.perf_counter() - t
+    begin("solve")
     t = time.perf_counter()
     solution = solve_problem(problem)
     del problem  # its arrays (pattern, pairs: ~1 kB per dof) are not needed by the second solve
@@ -151,6 +159,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     times["solve"] = time.perf_counter() - t
     corrected = None
     if solution.converged:
+        begin("correct")
         t = time.perf_counter()
         corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
                                       settings.correction.section_points, split)
