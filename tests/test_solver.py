@@ -403,6 +403,7 @@ def test_direct_solver_applies_its_options_and_removes_them():
     solver.factor(A)
     F = solver.ksp.getPC().getFactorMatrix()
     assert F.getMumpsIcntl(7) == 2 and F.getMumpsIcntl(13) == 1 and F.getMumpsIcntl(24) == 1
+    assert F.getMumpsIcntl(14) == 50
     left = [k for k in PETSc.Options().getAll() if k.startswith("tfx_test_options")]
     assert left == []
     b, x = A.createVecLeft(), A.createVecRight()

@@ -27,12 +27,18 @@ DIRECT_LU = {
 # exact on any number of ranks: a convex energy's matrix has none (MUMPS counts them with SYM = 1
 # too). ICNTL(7) = 2, AMF ordering: Debian's MUMPS has no METIS/SCOTCH and its automatic choice is
 # PORD; on a 3.3e5-dof satin coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s.
+# ICNTL(14) = 50: the factorisation's workspace is the analysis' estimate + 50 % (MUMPS' default
+# 20 %). On 2 ranks, MUMPS places parts of the fronts on the less loaded process while it
+# factorises, so a rank can need more than estimated: with four MPI processes sharing the 2 cores,
+# the 2-rank tests' satin failed with INFOG(1) = -9 (54 153 entries short) at 20 %. Pages of the
+# margin that are not used are never touched: a 2x2 satin coupon peaked at 647 MB, 642 at 20 %.
 DIRECT_LDLT = {
     "ksp_type": "preonly",
     "pc_type": "cholesky",
     "pc_factor_mat_solver_type": "mumps",
     "mat_mumps_icntl_7": 2,
     "mat_mumps_icntl_13": 1,
+    "mat_mumps_icntl_14": 50,
     "mat_mumps_icntl_24": 1,
 }
 
