@@ -44,7 +44,7 @@ DIRECT_LDLT = {
 
 # Added to DIRECT_LDLT for large coupons: MUMPS writes its factors to disk (ICNTL(22) = 1, in
 # $MUMPS_OOC_TMPDIR, else /tmp) and keeps only the fronts it works on in memory. On a 3.3e5-dof
-# satin coupon the solve stage needed 2.3 x less memory and took 25 % longer (README, Performance).
+# satin coupon the solve stage needed 2.3 x less memory and took 15-25 % longer (README, Performance).
 OUT_OF_CORE = {"mat_mumps_icntl_22": 1}
 
 _serial = itertools.count()
