@@ -91,6 +91,73 @@ def test_outputs_complete_and_corrected_tg3_reads_back(satin_run, mpi_tmp_path):
                 assert np.max(np.abs(np.subtract(sa.vertices, sb.vertices))) < 1e-6
 
 
+def _png_size(path) -> tuple[int, int]:
+    """(width, height) of a PNG, from its header (the IHDR chunk)."""
+    data = path.read_bytes()[:24]
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR", f"{path} is not a PNG"
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+@pytest.mark.mpi
+def test_figures_drawn_in_the_background_are_the_run_s(satin_run, mpi_tmp_path):
+    # figures.Painter draws in a child process (on rank 0): the three PNGs land in the folder at
+    # the sizes plotting.py asks for (3D views 1400 x 1000 pixels; the cross-sections 14 x 2.6 inches
+    # per cutting line at 110 dpi, two on this satin: along its first yarn, which is the most
+    # crimped, and between it and the next), and the before and after views are different pictures
+    from textile_fenicsx.outputs import cut_lines
+
+    result, _ = satin_run
+    out = result.write(mpi_tmp_path / "run", fields=False, surfaces=False)
+    if MPI.COMM_WORLD.rank != 0:
+        return
+    assert sorted(p.name for p in out.glob("*.png")) == ["cross_sections.png", "view_after.png", "view_before.png"]
+    assert _png_size(out / "view_before.png") == _png_size(out / "view_after.png") == (1400, 1000)
+    lines = len(cut_lines(result.textile))
+    assert lines == 2 and _png_size(out / "cross_sections.png") == (14 * 110, round(2.6 * lines * 110))
+    assert (out / "view_before.png").read_bytes() != (out / "view_after.png").read_bytes()
+    assert not list(out.glob("*.job")) and not list(out.glob("painter.log"))
+
+
+@pytest.mark.serial
+def test_a_figure_that_cannot_be_drawn_is_an_error_naming_it_and_nothing_is_written(satin_run, tmp_path,
+                                                                                     monkeypatch):
+    # the child finds no X server (no DISPLAY, no Xvfb on its PATH) and ends: the run's write
+    # raises an OSError naming the first figure's place in the output folder, with the child's
+    # reason, and the folder does not appear (staged: written completely or not at all)
+    from textile_fenicsx.figures import Painter
+
+    result, _ = satin_run
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    with Painter() as painter:
+        folder = painter.folder
+        with pytest.raises(OSError) as error:
+            result.write(tmp_path / "run", fields=False, painter=painter)
+    assert error.value.filename == str(tmp_path / "run" / "view_before.png")
+    assert "X server" in str(error.value)
+    assert not (tmp_path / "run").exists() and not [p for p in tmp_path.iterdir() if p.name != "empty"]
+    assert not folder.exists()  # the painter's own folder is removed when it closes
+
+
+@pytest.mark.serial
+def test_a_bad_figure_job_names_its_file_and_the_painter_goes_on(satin_run, tmp_path):
+    # one job that fails (no surfaces to draw) is reported for its own target; the painter keeps
+    # drawing the jobs after it
+    from textile_fenicsx.figures import Painter
+
+    result, corrected = satin_run
+    with Painter() as painter:
+        painter.draw("textile", tmp_path / "broken.png", result.textile, None, "no surfaces")
+        with pytest.raises(OSError) as error:
+            painter.collect()
+        assert error.value.filename == str(tmp_path / "broken.png") and "AttributeError" in str(error.value)
+        painter.draw("cross_sections", tmp_path / "sections.png", result.textile, corrected, [
+            ("a line", (0.0, 1.0), (5.6, 1.0))])
+        assert painter.collect() == [tmp_path / "sections.png"]
+    assert _png_size(tmp_path / "sections.png") == (14 * 110, round(2.6 * 110))
+    assert not (tmp_path / "broken.png").exists()
+
+
 @pytest.mark.mpi
 def test_fields_open_in_meshio_and_pyvista(satin_run, mpi_tmp_path):
     # fields/yarn_I.vtu: every yarn's mid-surface over its cells in the unit cell, with w, z0, t,

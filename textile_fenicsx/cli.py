@@ -188,7 +188,7 @@ def _solve(args) -> int:
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
     claim = claim_output(args.out, inputs=inputs, names=RESULT_NAMES + FAILED_NAMES, force=args.force, comm=comm)
-    with claim if args.out else nullcontext():
+    with claim if args.out else nullcontext(), _painter(args, comm) as painter:
         result = run(textile, settings, comm)
         result.times["model"] = model_time
         if not result.converged:
@@ -198,18 +198,29 @@ def _solve(args) -> int:
                 where = f"; {args.out}/ holds only FAILED and log.json (the iteration log)"
             hint = " (try a larger --max-iterations)" if "cap" in result.solution.reason else ""
             raise SolverError(f"{result.solution.reason}{hint}{where}")
-        verdict = result.verdict
-        if args.out:
-            out = result.write(args.out, figures=not args.no_figures)
+        if args.out:  # the check's metrics are measured while the figures are drawn
+            out = result.write(args.out, figures=not args.no_figures, painter=painter)
             if comm.rank == 0:
                 print((out / "metrics.json").read_text())
-        elif comm.rank == 0:
+        verdict = result.verdict
+        if not args.out and comm.rank == 0:
             print(json.dumps({**result.summary(), "verdict": verdict}, indent=1))
     if not verdict["passed"]:
         kept = f"; the outputs are kept in {args.out}/ (rejected.tg3, FAILED)" if args.out else ""
         raise SolverError("the corrected model fails its check: "
                           + "; ".join(f["message"] for f in verdict["failures"]) + kept)
     return 0
+
+
+def _painter(args, comm):
+    """The process that will draw the figures (figures.Painter), started now so that its imports
+    and X server are ready when the solve is done; on one rank only (on more it would take a core
+    from the solve: write_run starts one after it)."""
+    if not args.out or args.no_figures or comm.size > 1:
+        return nullcontext()
+    from textile_fenicsx.figures import Painter
+
+    return Painter()
 
 
 def _check_repeat(args) -> None:

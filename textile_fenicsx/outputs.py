@@ -105,24 +105,47 @@ def metrics_document(run) -> dict:
     }
 
 
-def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: bool = True) -> Path:
+def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: bool = True, painter=None) -> Path:
     """Write the run's folder `out` (collective); returns its path. fields, surfaces, figures: False
-    leaves those parts out (the models and metrics.json are always written). A run whose check
-    failed keeps everything for inspection, its corrected model named rejected.tg3/.json, and a
-    FAILED file with the reasons."""
+    leaves those parts out (the models and metrics.json are always written). The figures are drawn
+    by a figures.Painter while the rest is written: `painter`, one started earlier (rank 0; the
+    CLI starts it before the solve, so that its imports are done by then), else one of its own.
+    A run whose check failed keeps everything for inspection, its corrected model named
+    rejected.tg3/.json, and a FAILED file with the reasons."""
     comm = run.comm
     with output_lock(out, comm):  # first: a folder that cannot be written fails before the metrics
-        return _write_run(run, out, figures, fields, surfaces)
+        if not figures or comm.rank != 0 or painter is not None:
+            return _write_run(run, out, figures, fields, surfaces, painter)
+        from textile_fenicsx.figures import Painter
+
+        with Painter() as own:
+            return _write_run(run, out, figures, fields, surfaces, own)
 
 
-def _write_run(run, out, figures: bool, fields: bool, surfaces: bool) -> Path:
+def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -> Path:
     comm = run.comm
     t0 = time.perf_counter()
-    metrics = metrics_document(run)
-    passed = metrics["verdict"]["passed"]
-    stem = "corrected" if passed else "rejected"
     corrected = run.corrected
     with staged_folder(out, comm, remove=FAILED_NAMES + RESULT_NAMES) as tmp:
+        built = {}
+        if comm.rank == 0 and (surfaces or figures):
+            from textile_fenicsx.surfaces import EXPORT, YarnSurfaces
+
+            log.info("outputs: surfaces")
+            built = {name: YarnSurfaces.build(t, resolution=EXPORT)
+                     for name, t in (("before", run.textile), ("after", corrected))}
+            if figures:  # drawn while the metrics are measured and the other files written
+                log.info("outputs: figures (drawn in the background)")
+                painter.draw("textile", tmp / "view_before.png", run.textile, built["before"],
+                             f"{run.textile.name}: before")
+                painter.draw("textile", tmp / "view_after.png", corrected, built["after"], f"{run.textile.name}: after")
+                painter.draw("cross_sections", tmp / "cross_sections.png", run.textile, corrected,
+                             cut_lines(run.textile))
+        t1 = time.perf_counter()
+        metrics = metrics_document(run)  # measures them, unless they were already
+        t0 += time.perf_counter() - t1
+        passed = metrics["verdict"]["passed"]
+        stem = "corrected" if passed else "rejected"
         log.info("outputs: models")
         if comm.rank == 0:
             write_tg3(corrected, tmp / f"{stem}.tg3")
@@ -133,33 +156,18 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool) -> Path:
         if fields:
             log.info("outputs: mid-surface fields")
             write_fields(run, tmp / "fields")
-        if comm.rank == 0 and (surfaces or figures):
-            from textile_fenicsx.surfaces import EXPORT, YarnSurfaces
-
-            log.info("outputs: surfaces")
-            built = {name: YarnSurfaces.build(t, resolution=EXPORT)
-                     for name, t in (("before", run.textile), ("after", corrected))}
-            for name, surf in built.items():
-                if surf.open_yarns:
-                    log.warning("outputs: the clipped surfaces of yarns %s (%s) could not be closed; written open",
-                                surf.open_yarns, name)
-                if surfaces:
-                    surf.write(tmp / f"surfaces_{name}.vtu")
-                    surf.write(tmp / f"surfaces_{name}.stl")
-            if figures:
-                from textile_fenicsx.plotting import offscreen, plot_cross_sections, plot_textile
-
-                log.info("outputs: figures")
-                with offscreen():  # one X server for both views
-                    with naming(tmp / "view_before.png"):
-                        plot_textile(run.textile, built["before"], tmp / "view_before.png",
-                                     f"{run.textile.name}: before")
-                    with naming(tmp / "view_after.png"):
-                        plot_textile(corrected, built["after"], tmp / "view_after.png", f"{run.textile.name}: after")
-                with naming(tmp / "cross_sections.png"):
-                    plot_cross_sections(run.textile, corrected, tmp / "cross_sections.png", cut_lines(run.textile))
-        metrics["time_s"]["outputs"] = time.perf_counter() - t0
-        metrics["time_s"]["total"] = metrics["time_s"].get("total", 0.0) + metrics["time_s"]["outputs"]
+        for name, surf in built.items():
+            if surf.open_yarns:
+                log.warning("outputs: the clipped surfaces of yarns %s (%s) could not be closed; written open",
+                            surf.open_yarns, name)
+            if surfaces:
+                surf.write(tmp / f"surfaces_{name}.vtu")
+                surf.write(tmp / f"surfaces_{name}.stl")
+        if figures and comm.rank == 0:
+            painter.collect()
+        times = metrics["time_s"]  # the run's stages, the check's metrics, the outputs
+        times["outputs"] = time.perf_counter() - t0
+        times["total"] = times.get("total", 0.0) + times.get("metrics", 0.0) + times["outputs"]
         if comm.rank == 0:
             _write_text(tmp / "metrics.json", json.dumps(metrics, indent=1))
     return Path(out)

@@ -107,11 +107,11 @@ class Run:
     def verdict(self) -> dict:
         return self.metrics["verdict"]
 
-    def write(self, out, figures: bool = True, fields: bool = True, surfaces: bool = True) -> Path:
+    def write(self, out, figures: bool = True, fields: bool = True, surfaces: bool = True, painter=None) -> Path:
         """The run's output folder (outputs.write_run; collective)."""
         from textile_fenicsx.outputs import write_run
 
-        return write_run(self, out, figures=figures, fields=fields, surfaces=surfaces)
+        return write_run(self, out, figures=figures, fields=fields, surfaces=surfaces, painter=painter)
 
 
 def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.COMM_WORLD,

@@ -5,6 +5,8 @@ Debian's VTK renders only through X11, and segfaults rather than raising without
 free display number itself, so concurrent runs do not collide) and stops it afterwards.
 """
 
+from __future__ import annotations
+
 import contextlib
 import os
 import shutil
@@ -12,9 +14,6 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from mpi4py import MPI
-
-import dolfinx
 
 
 @contextlib.contextmanager
@@ -50,6 +49,8 @@ def gather_p1_surface(u: dolfinx.fem.Function, root: int = 0):
     Returns (points (N, 3), triangles (M, 3), values (N,)) on `root` and None elsewhere. Vertices on
     rank boundaries appear once per rank: fine for pictures, not for computation.
     """
+    import dolfinx
+
     msh = u.function_space.mesh
     tdim = msh.topology.dim
     n_owned = msh.topology.index_map(tdim).size_local

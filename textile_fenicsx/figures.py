@@ -1,0 +1,149 @@
+"""A run's figures, drawn by a process of their own while the run goes on (DESIGN.md 8).
+
+Drawing costs more than writing every other file of a run: on satin4 at seed 0.25, importing
+pyvista and matplotlib 0.5 s, an X server 0.2 s, the two 3D views 0.9 s and the cross-sections
+0.7 s, a fifth of the command's time, on one core while the other idles. A `Painter` starts
+`python -m textile_fenicsx.figures` at once: the child imports its libraries and starts its X
+server while the run meshes and solves, and draws each figure it is handed (`draw`) into a folder
+of its own while the run measures and writes its other files; `collect` waits for the figures and
+moves them where they belong. A figure that fails is an error naming its file, as it was when
+drawn in process.
+
+The child is not part of an MPI job: the launcher's variables are removed from its environment
+and it imports neither mpi4py nor DOLFINx. Jobs are pickled to files in the child's folder and
+announced by one line on its stdin (a line never blocks the run, a large pickle in a pipe could);
+the child answers one line per figure on its stdout. It ends when its stdin closes (`close`, or
+the run's process ending for any reason).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+import subprocess
+import sys
+import tempfile
+import traceback
+from pathlib import Path
+
+from textile_fenicsx.files import naming
+
+__all__ = ["Painter"]
+
+# what each kind of figure calls, in the child (plotting.py)
+KINDS = ("textile", "cross_sections")
+# environment variables that would make the child think it is a rank of the run's MPI job
+_LAUNCHER_PREFIXES = ("OMPI_", "PMIX_", "PMI_", "PRTE_", "HYDRA_", "MPI_LOCALNRANKS", "MPI_LOCALRANKID")
+
+
+class Painter:
+    """Figures drawn by a child process. Use as a context manager (or call `close`)."""
+
+    def __init__(self):
+        self.folder = Path(tempfile.mkdtemp(prefix="textile-fenicsx-figures-"))
+        env = {k: v for k, v in os.environ.items() if not k.startswith(_LAUNCHER_PREFIXES)}
+        self._log = open(self.folder / "painter.log", "wb")
+        self._child = subprocess.Popen([sys.executable, "-m", "textile_fenicsx.figures", str(self.folder)],
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, env=env,
+                                       text=True, bufsize=1)
+        self._pending: dict[str, Path] = {}  # figure name -> where it goes
+        self._count = 0
+
+    def draw(self, kind: str, target: Path, *args) -> None:
+        """Have the child draw a figure of `kind` (KINDS) with these arguments, for `target`."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown kind of figure {kind!r} (one of {', '.join(KINDS)})")
+        self._count += 1
+        name = f"{self._count}_{Path(target).name}"
+        job = self.folder / f"{name}.job"
+        with open(job.with_suffix(".part"), "wb") as f:
+            pickle.dump((kind, args), f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(job.with_suffix(".part"), job)
+        self._pending[name] = Path(target)
+        try:
+            self._child.stdin.write(name + "\n")
+            self._child.stdin.flush()
+        except (BrokenPipeError, OSError):
+            pass  # the child has ended: collect reports why
+
+    def collect(self) -> list[Path]:
+        """Wait for every figure asked for and move each to its target; raise OSError naming the
+        first target that could not be drawn (the child's reason in the message)."""
+        done, failed = [], None
+        while self._pending:
+            line = self._child.stdout.readline()
+            if not line:  # the child ended without answering
+                for target in self._pending.values():
+                    failed = failed or (target, f"the figure process ended ({self._reason()})")
+                self._pending.clear()
+                break
+            status, _, rest = line.rstrip("\n").partition(" ")
+            name, _, reason = rest.partition(" ")
+            target = self._pending.pop(name, None)
+            if target is None:
+                continue
+            if status == "ok":
+                with naming(target):
+                    shutil.move(self.folder / name, target)
+                done.append(target)
+            else:
+                failed = failed or (target, reason or "no reason given")
+        if failed:
+            raise OSError(5, f"the figure could not be drawn: {failed[1]}", str(failed[0]))
+        return done
+
+    def _reason(self) -> str:
+        self._log.flush()
+        text = (self.folder / "painter.log").read_text(errors="replace").strip().splitlines()
+        return text[-1] if text else f"exit code {self._child.poll()}"
+
+    def close(self) -> None:
+        """End the child (it finishes the figure it is drawing) and remove its folder."""
+        if self._child.stdin and not self._child.stdin.closed:
+            try:
+                self._child.stdin.close()
+            except OSError:
+                pass
+        try:
+            self._child.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self._child.kill()
+            self._child.wait()
+        self._child.stdout.close()
+        self._log.close()
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+    def __enter__(self) -> Painter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _serve(folder: Path) -> None:
+    """The child: draw each announced job into folder/NAME, answer 'ok NAME' or 'error NAME REASON'
+    (on the stdout it was started with; anything the libraries print goes to stderr, the log)."""
+    answers = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)
+    from textile_fenicsx import plotting
+
+    import matplotlib  # noqa: F401 (imported before the first job, while the run is busy)
+    import pyvista  # noqa: F401
+
+    draw = {"textile": plotting.plot_textile, "cross_sections": plotting.plot_cross_sections}
+    with plotting.offscreen():
+        for line in sys.stdin:
+            name = line.strip()
+            try:
+                kind, (a, b, c) = pickle.loads((folder / f"{name}.job").read_bytes())
+                draw[kind](a, b, folder / name, c)  # (textile, surfaces, path, title) or (before, after, path, lines)
+                answer = f"ok {name}"
+            except Exception as e:  # reported to the run, which raises it naming the figure
+                traceback.print_exc()
+                answer = f"error {name} {type(e).__name__}: {e}".replace("\n", " ")
+            print(answer, file=answers, flush=True)
+
+
+if __name__ == "__main__":
+    _serve(Path(sys.argv[1]))
