@@ -147,12 +147,12 @@ def test_a_bad_figure_job_names_its_file_and_the_painter_goes_on(satin_run, tmp_
 
     result, corrected = satin_run
     with Painter() as painter:
-        painter.draw("textile", tmp_path / "broken.png", result.textile, None, "no surfaces")
+        painter.draw([("textile", tmp_path / "broken.png", (result.textile, None, "no surfaces"))])
         with pytest.raises(OSError) as error:
             painter.collect()
         assert error.value.filename == str(tmp_path / "broken.png") and "AttributeError" in str(error.value)
-        painter.draw("cross_sections", tmp_path / "sections.png", result.textile, corrected, [
-            ("a line", (0.0, 1.0), (5.6, 1.0))])
+        painter.draw([("cross_sections", tmp_path / "sections.png", (result.textile, corrected, [
+            ("a line", (0.0, 1.0), (5.6, 1.0))]))])
         assert painter.collect() == [tmp_path / "sections.png"]
     assert _png_size(tmp_path / "sections.png") == (14 * 110, round(2.6 * 110))
     assert not (tmp_path / "broken.png").exists()

@@ -50,19 +50,23 @@ class Painter:
         self._pending: dict[str, Path] = {}  # figure name -> where it goes
         self._count = 0
 
-    def draw(self, kind: str, target: Path, *args) -> None:
-        """Have the child draw a figure of `kind` (KINDS) with these arguments, for `target`."""
-        if kind not in KINDS:
-            raise ValueError(f"unknown kind of figure {kind!r} (one of {', '.join(KINDS)})")
-        self._count += 1
-        name = f"{self._count}_{Path(target).name}"
-        job = self.folder / f"{name}.job"
+    def draw(self, figures: list[tuple[str, Path, tuple]]) -> None:
+        """Have the child draw these figures, each (kind (KINDS), target, arguments); they are
+        pickled together, so that objects they share are written once (a corrected model: 0.08 s)."""
+        jobs = []
+        for kind, target, args in figures:
+            if kind not in KINDS:
+                raise ValueError(f"unknown kind of figure {kind!r} (one of {', '.join(KINDS)})")
+            self._count += 1
+            name = f"{self._count}_{Path(target).name}"
+            self._pending[name] = Path(target)
+            jobs.append((name, kind, args))
+        job = self.folder / f"{self._count}.job"
         with open(job.with_suffix(".part"), "wb") as f:
-            pickle.dump((kind, args), f, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump(jobs, f, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(job.with_suffix(".part"), job)
-        self._pending[name] = Path(target)
         try:
-            self._child.stdin.write(name + "\n")
+            self._child.stdin.write(job.name + "\n")
             self._child.stdin.flush()
         except (BrokenPipeError, OSError):
             pass  # the child has ended: collect reports why
@@ -134,16 +138,17 @@ def _serve(folder: Path) -> None:
     draw = {"textile": plotting.plot_textile, "cross_sections": plotting.plot_cross_sections}
     with plotting.offscreen():
         for line in sys.stdin:
-            name = line.strip()
-            try:
-                kind, (a, b, c) = pickle.loads((folder / f"{name}.job").read_bytes())
-                draw[kind](a, b, folder / name, c)  # (textile, surfaces, path, title) or (before, after, path, lines)
-                answer = f"ok {name}"
-            except Exception as e:  # reported to the run, which raises it naming the figure
-                traceback.print_exc()
-                answer = f"error {name} {type(e).__name__}: {e}".replace("\n", " ")
-            print(answer, file=answers, flush=True)
+            jobs = pickle.loads((folder / line.strip()).read_bytes())
+            for name, kind, (a, b, c) in jobs:
+                try:  # (textile, surfaces, path, title) or (before, after, path, lines)
+                    draw[kind](a, b, folder / name, c)
+                    answer = f"ok {name}"
+                except Exception as e:  # reported to the run, which raises it naming the figure
+                    traceback.print_exc()
+                    answer = f"error {name} {type(e).__name__}: {e}".replace("\n", " ")
+                print(answer, file=answers, flush=True)
 
 
 if __name__ == "__main__":
-    _serve(Path(sys.argv[1]))
+    _serve(Path(sys.argv[1]))  # its X server stopped, every answer flushed: no interpreter teardown
+    os._exit(0)  # (VTK's took 0.1-0.3 s, for which the run waited in `close`)

@@ -136,11 +136,10 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
                      for name, t in (("before", run.textile), ("after", corrected))}
             if figures:  # drawn while the metrics are measured and the other files written
                 log.info("outputs: figures (drawn in the background)")
-                painter.draw("textile", tmp / "view_before.png", run.textile, built["before"],
-                             f"{run.textile.name}: before")
-                painter.draw("textile", tmp / "view_after.png", corrected, built["after"], f"{run.textile.name}: after")
-                painter.draw("cross_sections", tmp / "cross_sections.png", run.textile, corrected,
-                             cut_lines(run.textile))
+                painter.draw([
+                    ("textile", tmp / "view_before.png", (run.textile, built["before"], f"{run.textile.name}: before")),
+                    ("textile", tmp / "view_after.png", (corrected, built["after"], f"{run.textile.name}: after")),
+                    ("cross_sections", tmp / "cross_sections.png", (run.textile, corrected, cut_lines(run.textile)))])
         t1 = time.perf_counter()
         metrics = metrics_document(run)  # measures them, unless they were already
         t0 += time.perf_counter() - t1

@@ -237,6 +237,10 @@ class Textile:
         """Drop the cached yarn triangles (large on coupons) once the queries are done."""
         self._triangles = {}
 
+    def __getstate__(self) -> dict:
+        """Pickled without the cached triangles (tens of MB; rebuilt on the first query)."""
+        return {**self.__dict__, "_triangles": {}}
+
     # --- queries ----------------------------------------------------------------------------
     def columns(self, xy, yarns=None) -> Columns:
         """Vertical-ray intervals of every yarn (or those listed) over in-plane points xy (N, 2)."""
