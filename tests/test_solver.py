@@ -521,3 +521,28 @@ def test_a_warm_start_takes_fewer_steps_than_a_cold_one_to_the_same_answer(name)
     assert warm.iterations < cold.iterations
     worst = max(float(np.max(np.abs(a.x.array - b.x.array), initial=0.0)) for a, b in zip(warm.w, cold.w))
     assert MPI.COMM_WORLD.allreduce(worst, op=MPI.MAX) < 1e-5
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("name", ["plain", "crowfoot_satin"])
+def test_a_loose_first_solve_shortens_the_run_and_keeps_its_answer(name, monkeypatch):
+    # pipeline.FIRST_SOLVE_TOL: the first solve stops when a step moves less than 1e-4 mm (not
+    # 1e-6); it only gives the slopes and the second solve's start, so the runs take fewer steps
+    # and end with the same corrected model: its yarn paths and sections agree within 1e-3 of
+    # the yarn height (the issue's bound for "the same model"; measured 1.8e-6 mm on the crowfoot
+    # satin, 2e-7 on plain). Compared as corrected models, which are whole on every rank (the
+    # two runs' meshes may be partitioned differently)
+    from textile_fenicsx import pipeline
+
+    t = build(name)
+    loose = pipeline.run(t, pipeline.Settings(MeshOptions(0.5)))
+    monkeypatch.setattr(pipeline, "FIRST_SOLVE_TOL", 0.0)  # the first solve to the solver's tolerance
+    tight = pipeline.run(t, pipeline.Settings(MeshOptions(0.5)))
+    assert loose.converged and tight.converged
+    assert loose.solution.iterations < tight.solution.iterations
+    height = min(float(np.ptp(np.asarray(sec.vertices)[:, 1])) for y in loose.corrected.yarns
+                 for sec in y.section.sections())
+    for a, b in zip(loose.corrected.yarns, tight.corrected.yarns):
+        assert np.max(np.abs(a.nodes - b.nodes)) < 1e-3 * height
+        for sa, sb in zip(a.section.sections(), b.section.sections()):
+            assert np.max(np.abs(np.subtract(sa.vertices, sb.vertices))) < 1e-3 * height

@@ -6,7 +6,7 @@ first use, and `write` makes the output folder."""
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,14 @@ from textile_fenicsx.textile import Textile
 __all__ = ["Run", "Settings", "run"]
 
 log = logging.getLogger(__name__)
+
+# The first solve's displacement tolerance [mm] (at least; the second solve's is the solver's own).
+# It only gives the slopes that thicken the plates and the second solve's start, and a start that
+# is not yet pressed against the constraints suits an interior point: with 1e-4 instead of 1e-6
+# satin4 at seed 0.25 took 23 steps over both solves instead of 34 (twill 18 vs 21, plain 16 vs 18,
+# the orthogonal weave 27 vs 29), and the answers moved by at most 7.5e-7 mm, less than the
+# tolerance of the second solve
+FIRST_SOLVE_TOL = 1e-4
 
 
 @dataclass(frozen=True)
@@ -137,7 +145,8 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     begin("assemble")
     t = time.perf_counter()
     loads = leg_loads(split, ms, settings.plate.sigma1, settings.mesh.seed)
-    problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads)
+    first_options = replace(settings.solver, displacement_tol=max(settings.solver.displacement_tol, FIRST_SOLVE_TOL))
+    problem = ContactProblem(ms, settings.plate, first_options, loads=loads)
     release_freed_memory()
     times["assemble"] = time.perf_counter() - t
     begin("solve")
