@@ -43,6 +43,7 @@ class Painter:
     def __init__(self):
         self.folder = Path(tempfile.mkdtemp(prefix="textile-fenicsx-figures-"))
         env = {k: v for k, v in os.environ.items() if not k.startswith(_LAUNCHER_PREFIXES)}
+        env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # the modules the run imports
         self._log = open(self.folder / "painter.log", "wb")
         self._child = subprocess.Popen([sys.executable, "-m", "textile_fenicsx.figures", str(self.folder)],
                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, env=env,
