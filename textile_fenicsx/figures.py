@@ -148,6 +148,7 @@ def _serve(folder: Path) -> None:
                     traceback.print_exc()
                     answer = f"error {name} {type(e).__name__}: {e}".replace("\n", " ")
                 print(answer, file=answers, flush=True)
+    shutil.rmtree(folder, ignore_errors=True)  # stdin closed: the run has its figures, or has ended
 
 
 if __name__ == "__main__":
