@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import pickle
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -38,17 +39,25 @@ _LAUNCHER_PREFIXES = ("OMPI_", "PMIX_", "PMI_", "PRTE_", "HYDRA_", "MPI_LOCALNRA
 
 
 class Painter:
-    """Figures drawn by a child process. Use as a context manager (or call `close`)."""
+    """Figures drawn by a child process. Use as a context manager (or call `close`). The child
+    leads a process group of its own (with its X server): `close` ends the group, so that a child
+    that was killed or crashed (VTK segfaults rather than raise) leaves no X server behind."""
 
     def __init__(self):
         self.folder = Path(tempfile.mkdtemp(prefix="textile-fenicsx-figures-"))
         env = {k: v for k, v in os.environ.items() if not k.startswith(_LAUNCHER_PREFIXES)}
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # the modules the run imports
-        self._log = open(self.folder / "painter.log", "wb")
-        self._child = subprocess.Popen([sys.executable, "-m", "textile_fenicsx.figures", str(self.folder)],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, env=env,
-                                       text=True, bufsize=1)
-        self._pending: dict[str, Path] = {}  # figure name -> where it goes
+        try:
+            self._log = open(self.folder / "painter.log", "wb")
+            self._child = subprocess.Popen([sys.executable, "-m", "textile_fenicsx.figures", str(self.folder)],
+                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._log, env=env,
+                                           text=True, bufsize=1, process_group=0)
+        except BaseException:
+            if hasattr(self, "_log"):
+                self._log.close()
+            shutil.rmtree(self.folder, ignore_errors=True)
+            raise
+        self._pending: dict[str, Path] = {}  # figure file -> where it goes
         self._count = 0
 
     def draw(self, figures: list[tuple[str, Path, tuple]]) -> None:
@@ -59,9 +68,11 @@ class Painter:
             if kind not in KINDS:
                 raise ValueError(f"unknown kind of figure {kind!r} (one of {', '.join(KINDS)})")
             self._count += 1
-            name = f"{self._count}_{Path(target).name}"
+            name = f"{self._count}.png"  # the child's file and answer: never a space in it
             self._pending[name] = Path(target)
             jobs.append((name, kind, args))
+        if not jobs:
+            return
         job = self.folder / f"{self._count}.job"
         with open(job.with_suffix(".part"), "wb") as f:
             pickle.dump(jobs, f, protocol=pickle.HIGHEST_PROTOCOL)
@@ -85,9 +96,7 @@ class Painter:
                 break
             status, _, rest = line.rstrip("\n").partition(" ")
             name, _, reason = rest.partition(" ")
-            target = self._pending.pop(name, None)
-            if target is None:
-                continue
+            target = self._pending.pop(name)  # the child answers only for figures it was given
             if status == "ok":
                 with naming(target):
                     shutil.move(self.folder / name, target)
@@ -103,18 +112,24 @@ class Painter:
         text = (self.folder / "painter.log").read_text(errors="replace").strip().splitlines()
         return text[-1] if text else f"exit code {self._child.poll()}"
 
-    def close(self) -> None:
-        """End the child (it finishes the figure it is drawing) and remove its folder."""
+    def close(self, now: bool = False) -> None:
+        """End the child and remove its folder: once it has drawn what it was given (it does
+        nothing after the last `collect`), or at once (`now`: the run failed)."""
         if self._child.stdin and not self._child.stdin.closed:
             try:
                 self._child.stdin.close()
             except OSError:
                 pass
         try:
-            self._child.wait(timeout=30)
+            self._child.wait(timeout=0 if now else 30)
         except subprocess.TimeoutExpired:
-            self._child.kill()
-            self._child.wait()
+            pass
+        if self._child.returncode != 0:  # the group: the child if it still runs, an X server it left
+            try:
+                os.killpg(self._child.pid, signal.SIGTERM)
+            except (ProcessLookupError, PermissionError):
+                pass
+        self._child.wait()
         self._child.stdout.close()
         self._log.close()
         shutil.rmtree(self.folder, ignore_errors=True)
@@ -122,8 +137,8 @@ class Painter:
     def __enter__(self) -> Painter:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, kind, value, tb) -> None:
+        self.close(now=kind is not None)
 
 
 def _serve(folder: Path) -> None:

@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 # is not yet pressed against the constraints suits an interior point: with 1e-4 instead of 1e-6
 # satin4 at seed 0.25 took 23 steps over both solves instead of 34 (twill 18 vs 21, plain 16 vs 18,
 # the orthogonal weave 27 vs 29), and the answers moved by at most 7.5e-7 mm, less than the
-# tolerance of the second solve
+# tolerance of the second solve (at the precision floor newton.py's `floor` rule may stop it after
+# a full step of 10 times this)
 FIRST_SOLVE_TOL = 1e-4
 
 
