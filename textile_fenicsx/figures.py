@@ -32,8 +32,9 @@ from textile_fenicsx.files import naming
 
 __all__ = ["Painter"]
 
-# what each kind of figure calls, in the child (plotting.py)
-KINDS = ("textile", "cross_sections")
+# what each kind of figure calls, in the child: plotting.plot_textile(textile, surfaces, path, title),
+# plotting.plot_cross_sections(before, after, path, lines)
+KINDS = {"textile": "plot_textile", "cross_sections": "plot_cross_sections"}
 # environment variables that would make the child think it is a rank of the run's MPI job
 _LAUNCHER_PREFIXES = ("OMPI_", "PMIX_", "PMI_", "PRTE_", "HYDRA_", "MPI_LOCALNRANKS", "MPI_LOCALRANKID")
 
@@ -151,13 +152,12 @@ def _serve(folder: Path) -> None:
     import matplotlib  # noqa: F401 (imported before the first job, while the run is busy)
     import pyvista  # noqa: F401
 
-    draw = {"textile": plotting.plot_textile, "cross_sections": plotting.plot_cross_sections}
     with plotting.offscreen():
         for line in sys.stdin:
             jobs = pickle.loads((folder / line.strip()).read_bytes())
             for name, kind, (a, b, c) in jobs:
-                try:  # (textile, surfaces, path, title) or (before, after, path, lines)
-                    draw[kind](a, b, folder / name, c)
+                try:
+                    getattr(plotting, KINDS[kind])(a, b, folder / name, c)
                     answer = f"ok {name}"
                 except Exception as e:  # reported to the run, which raises it naming the figure
                     traceback.print_exc()
