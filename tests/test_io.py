@@ -250,6 +250,26 @@ def test_twill_builder_volume_is_section_area_times_length(spacing, fill, aspect
     assert np.sum(col.top - col.bottom) * dA == pytest.approx(expected, rel=0.01)
 
 
+@pytest.mark.serial
+@settings(max_examples=10, deadline=None, suppress_health_check=SUPPRESS)
+@given(spacing=st.floats(1.0, 4.0), fill=st.floats(0.5, 1.0), aspect=st.floats(0.05, 0.25),
+       n=st.integers(7, 120), half=st.booleans())
+def test_rays_on_a_lattice_cross_the_yarns_where_binned_rays_do(spacing, fill, aspect, n, half):
+    # Points on a regular grid (or a rank's half of one) take the lattice path of the ray casting;
+    # the same points with one more off the grid take the binned path. Both test the same
+    # triangles with the same arithmetic, so every interval must be equal to the last bit.
+    t = build("twill", spacing=spacing, width=fill * spacing, height=aspect * spacing)
+    xy, _ = t.cell.grid(n)
+    if half:
+        xy = np.array_split(xy, 2)[1]
+    off = np.vstack((xy, xy.mean(axis=0) + 0.123456 * t.cell.lx / n))
+    a, b = t.columns(xy), t.columns(off)
+    mine = b.point < len(xy)
+    assert len(a.point) > 0
+    for name in ("point", "yarn", "bottom", "top"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)[mine]), name
+
+
 def mutated(data, text: str, splice: int, delete: int) -> str:
     """The text cut at a drawn place, or with up to `splice` drawn characters in place of one, or
     with up to `delete` characters removed there."""
