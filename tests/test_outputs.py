@@ -143,19 +143,19 @@ def test_a_figure_that_cannot_be_drawn_is_an_error_naming_it_and_nothing_is_writ
 
 @pytest.mark.serial
 def test_a_bad_figure_job_names_its_file_and_the_painter_goes_on(satin_run, tmp_path):
-    # one job that fails (no surfaces to draw) is reported for its own target; the painter keeps
+    # one job that fails (no textile to draw) is reported for its own target; the painter keeps
     # drawing the jobs after it
     from textile_fenicsx.figures import Painter
 
     result, corrected = satin_run
     with Painter() as painter:
-        painter.draw([("textile", tmp_path / "broken.png", (result.textile, None, "no surfaces"))])
+        painter.draw([("textile", "broken.png", (None, None, "no textile"))])
         with pytest.raises(OSError) as error:
-            painter.collect()
+            painter.collect(tmp_path)
         assert error.value.filename == str(tmp_path / "broken.png") and "AttributeError" in str(error.value)
-        painter.draw([("cross_sections", tmp_path / "sections.png", (result.textile, corrected, [
+        painter.draw([("cross_sections", "sections.png", (result.textile, corrected, [
             ("a line", (0.0, 1.0), (5.6, 1.0))]))])
-        assert painter.collect() == [tmp_path / "sections.png"]
+        assert painter.collect(tmp_path) == [tmp_path / "sections.png"]
     assert _png_size(tmp_path / "sections.png") == (14 * 110, round(2.6 * 110))
     assert not (tmp_path / "broken.png").exists()
 
@@ -185,14 +185,14 @@ def test_a_figure_process_killed_hard_is_named_and_leaves_no_x_server(satin_run,
     line = [("a line", (0.0, 1.0), (5.6, 1.0))]
     monkeypatch.delenv("DISPLAY", raising=False)  # the child starts an Xvfb of its own
     with Painter() as painter:
-        painter.draw([("cross_sections", tmp_path / "a.png", (result.textile, corrected, line))])
-        assert painter.collect() == [tmp_path / "a.png"]  # drawn: its X server runs
+        painter.draw([("cross_sections", "a.png", (result.textile, corrected, line))])
+        assert painter.collect(tmp_path) == [tmp_path / "a.png"]  # drawn: its X server runs
         group = painter._child.pid
         assert "Xvfb" in _living_group(group)
         os.kill(group, signal.SIGKILL)
-        painter.draw([("cross_sections", tmp_path / "b.png", (result.textile, corrected, line))])
+        painter.draw([("cross_sections", "b.png", (result.textile, corrected, line))])
         with pytest.raises(OSError) as error:
-            painter.collect()
+            painter.collect(tmp_path)
         assert error.value.filename == str(tmp_path / "b.png") and "figure process ended" in str(error.value)
     for _ in range(50):  # the X server ends on SIGTERM
         if not _living_group(group):

@@ -188,7 +188,7 @@ def _solve(args) -> int:
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
     claim = claim_output(args.out, inputs=inputs, names=RESULT_NAMES + FAILED_NAMES, force=args.force, comm=comm)
-    with claim if args.out else nullcontext(), _painter(args, comm) as painter:
+    with claim if args.out else nullcontext(), _painter(args, comm, textile) as painter:
         result = run(textile, settings, comm)
         result.times["model"] = model_time
         if not result.converged:
@@ -212,15 +212,22 @@ def _solve(args) -> int:
     return 0
 
 
-def _painter(args, comm):
-    """The process that will draw the figures (figures.Painter), started now so that its imports
-    and X server are ready when the solve is done; on one rank only (on more it would take a core
-    from the solve: write_run starts one after it)."""
+def _painter(args, comm, textile):
+    """The process that draws the figures (figures.Painter), started now so that its imports and
+    X server are ready, and the input's view drawn, when the solve is done; on one rank only (on
+    more it would take a core from the solve: write_run starts one after it)."""
     if not args.out or args.no_figures or comm.size > 1:
         return nullcontext()
     from textile_fenicsx.figures import Painter
+    from textile_fenicsx.outputs import input_figures
 
-    return Painter()
+    painter = Painter()
+    try:
+        painter.draw(input_figures(textile))
+    except BaseException:
+        painter.close(now=True)
+        raise
+    return painter
 
 
 def _check_repeat(args) -> None:

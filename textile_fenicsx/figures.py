@@ -3,10 +3,10 @@
 Drawing costs more than writing every other file of a run: on satin4 at seed 0.25, importing
 pyvista and matplotlib 0.5 s, an X server 0.2 s, the two 3D views 0.9 s and the cross-sections
 0.7 s, a fifth of the command's time, on one core while the other idles. A `Painter` starts
-`python -m textile_fenicsx.figures` at once: the child imports its libraries and starts its X
-server while the run meshes and solves, and draws each figure it is handed (`draw`) into a folder
-of its own while the run measures and writes its other files; `collect` waits for the figures and
-moves them where they belong. A figure that fails is an error naming its file, as it was when
+`python -m textile_fenicsx.figures` at once: the child imports its libraries, starts its X
+server and draws the input's view (the CLI hands it over first) while the run meshes and solves,
+and draws the other figures into a folder of its own while the run measures and writes its other
+files; `collect` waits for the figures and moves them into the run's folder. A figure that fails is an error naming its file, as it was when
 drawn in process.
 
 The child is not part of an MPI job: the launcher's variables are removed from its environment
@@ -58,19 +58,23 @@ class Painter:
                 self._log.close()
             shutil.rmtree(self.folder, ignore_errors=True)
             raise
-        self._pending: dict[str, Path] = {}  # figure file -> where it goes
+        self._pending: dict[str, str] = {}  # the child's file -> the figure's file name
+        self.asked: set[str] = set()  # file names of every figure asked for
         self._count = 0
 
-    def draw(self, figures: list[tuple[str, Path, tuple]]) -> None:
-        """Have the child draw these figures, each (kind (KINDS), target, arguments); they are
-        pickled together, so that objects they share are written once (a corrected model: 0.08 s)."""
+    def draw(self, figures: list[tuple[str, str, tuple]]) -> None:
+        """Have the child draw these figures, each (kind (KINDS), file name, arguments); they are
+        pickled together, so that objects they share are written once (a corrected model: 0.08 s).
+        Figures can be asked for before their folder exists (the CLI asks for the input's view
+        before the solve): `collect` says where they go."""
         jobs = []
-        for kind, target, args in figures:
+        for kind, file_name, args in figures:
             if kind not in KINDS:
                 raise ValueError(f"unknown kind of figure {kind!r} (one of {', '.join(KINDS)})")
             self._count += 1
             name = f"{self._count}.png"  # the child's file and answer: never a space in it
-            self._pending[name] = Path(target)
+            self._pending[name] = file_name
+            self.asked.add(file_name)
             jobs.append((name, kind, args))
         if not jobs:
             return
@@ -84,28 +88,28 @@ class Painter:
         except (BrokenPipeError, OSError):
             pass  # the child has ended: collect reports why
 
-    def collect(self) -> list[Path]:
-        """Wait for every figure asked for and move each to its target; raise OSError naming the
-        first target that could not be drawn (the child's reason in the message)."""
+    def collect(self, folder: Path) -> list[Path]:
+        """Wait for every figure asked for and move each into `folder` under its file name; raise
+        OSError naming the first that could not be drawn (the child's reason in the message)."""
         done, failed = [], None
         while self._pending:
             line = self._child.stdout.readline()
             if not line:  # the child ended without answering
-                for target in self._pending.values():
-                    failed = failed or (target, f"the figure process ended ({self._reason()})")
+                for file_name in self._pending.values():
+                    failed = failed or (file_name, f"the figure process ended ({self._reason()})")
                 self._pending.clear()
                 break
             status, _, rest = line.rstrip("\n").partition(" ")
             name, _, reason = rest.partition(" ")
-            target = self._pending.pop(name)  # the child answers only for figures it was given
+            target = Path(folder) / self._pending.pop(name)  # answers come only for figures it was given
             if status == "ok":
                 with naming(target):
                     shutil.move(self.folder / name, target)
                 done.append(target)
             else:
-                failed = failed or (target, reason or "no reason given")
+                failed = failed or (target.name, reason or "no reason given")
         if failed:
-            raise OSError(5, f"the figure could not be drawn: {failed[1]}", str(failed[0]))
+            raise OSError(5, f"the figure could not be drawn: {failed[1]}", str(Path(folder) / failed[0]))
         return done
 
     def _reason(self) -> str:

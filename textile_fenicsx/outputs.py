@@ -105,6 +105,13 @@ def metrics_document(run) -> dict:
     }
 
 
+def input_figures(textile, surfaces=None) -> list[tuple[str, str, tuple]]:
+    """The figures of a run that need only its input (the before view), as jobs for a
+    figures.Painter: the CLI hands them over before the solve, to be drawn while it runs (with
+    surfaces None the painter builds them)."""
+    return [("textile", "view_before.png", (textile, surfaces, f"{textile.name}: before"))]
+
+
 def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: bool = True, painter=None) -> Path:
     """Write the run's folder `out` (collective); returns its path. fields, surfaces, figures: False
     leaves those parts out (the models and metrics.json are always written). The figures are drawn
@@ -136,10 +143,10 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
                      for name, t in (("before", run.textile), ("after", corrected))}
             if figures:  # drawn while the metrics are measured and the other files written
                 log.info("outputs: figures (drawn in the background)")
-                painter.draw([
-                    ("textile", tmp / "view_before.png", (run.textile, built["before"], f"{run.textile.name}: before")),
-                    ("textile", tmp / "view_after.png", (corrected, built["after"], f"{run.textile.name}: after")),
-                    ("cross_sections", tmp / "cross_sections.png", (run.textile, corrected, cut_lines(run.textile)))])
+                painter.draw([f for f in input_figures(run.textile, built["before"]) + [
+                    ("textile", "view_after.png", (corrected, built["after"], f"{run.textile.name}: after")),
+                    ("cross_sections", "cross_sections.png", (run.textile, corrected, cut_lines(run.textile)))]
+                    if f[1] not in painter.asked])
         t1 = time.perf_counter()
         metrics = metrics_document(run)  # measures them, unless they were already
         t0 += time.perf_counter() - t1
@@ -163,7 +170,7 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
                 surf.write(tmp / f"surfaces_{name}.vtu")
                 surf.write(tmp / f"surfaces_{name}.stl")
         if figures and comm.rank == 0:
-            painter.collect()
+            painter.collect(tmp)
         times = metrics["time_s"]  # the run's stages, the check's metrics, the outputs
         times["outputs"] = time.perf_counter() - t0
         times["total"] = times.get("total", 0.0) + times.get("metrics", 0.0) + times["outputs"]

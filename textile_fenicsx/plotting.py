@@ -97,9 +97,14 @@ def plot_height_field(u: dolfinx.fem.Function, path: Path, title: str, warp: flo
 
 
 def plot_textile(textile, surfaces, path: Path, title: str | None = None) -> None:
-    """Write a PNG 3D view of the textile's yarn surfaces (surfaces.YarnSurfaces), coloured by yarn."""
+    """Write a PNG 3D view of the textile's yarn surfaces (surfaces.YarnSurfaces, or None: built
+    here at the resolution of the run's exports), coloured by yarn."""
     import pyvista
 
+    if surfaces is None:
+        from textile_fenicsx.surfaces import EXPORT, YarnSurfaces
+
+        surfaces = YarnSurfaces.build(textile, resolution=EXPORT)
     mesh = surfaces.polydata()
     points = surfaces.points
     x0, x1, y0, y1 = textile.cell.bounds
