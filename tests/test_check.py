@@ -26,6 +26,25 @@ def test_self_intersection_of_polygons():
     assert list(self_intersecting(np.array([square, bow]))) == [False, True]
     assert list(self_intersecting(np.array([star]))) == [False]
     assert Polygon(tuple(map(tuple, star))).area() > 0  # a star is simple: anticlockwise, positive
+    # a pentagram turns the same way at every vertex, but twice round: it crosses itself
+    pentagram = np.array([[np.cos(a), np.sin(a)] for a in np.arange(5) * 4 * np.pi / 5])
+    assert list(self_intersecting(np.array([pentagram]))) == [True]
+
+
+@pytest.mark.serial
+def test_the_convex_shortcut_of_the_self_intersection_check_changes_no_answer():
+    # convex polygons skip the test of every pair of edges: on ellipses, their perturbations (some
+    # convex, some not, some crossing themselves) and random polygons the answers are those of the
+    # full test
+    from textile_fenicsx.verify import _edges_cross
+
+    rng = np.random.default_rng(3)
+    base = Ellipse(2.0, 0.5).points(32)
+    polys = [base, base[::-1]] + [base + rng.normal(0, s, base.shape) for s in (1e-3, 1e-2, 0.05, 0.2) for _ in range(50)]
+    polys += [rng.random((32, 2)) for _ in range(50)]
+    polys = np.array(polys)
+    fast, full = self_intersecting(polys), _edges_cross(polys)
+    assert np.array_equal(fast, full) and 0 < fast.sum() < len(polys)
 
 
 @pytest.mark.serial

@@ -223,7 +223,7 @@ class Textile:
             one = _tube_triangles(verts, closed_ends=not yarn.periodic)
             lo, hi = verts.reshape(-1, 3).min(axis=0), verts.reshape(-1, 3).max(axis=0)
             pad = 1e-6 * max(self.cell.lx, self.cell.ly)
-            t_lo, t_hi = one[:, :, :2].min(axis=1), one[:, :, :2].max(axis=1)
+            t_lo, t_hi = _plan_box(one)
             copies = []
             for t in self._translations(yarn, lo, hi, (x0, x1, y0, y1)):
                 keep = ((t_hi[:, 0] + t[0] >= x0 - pad) & (t_lo[:, 0] + t[0] <= x1 + pad)
@@ -370,7 +370,7 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     keep = np.abs(area2) > 1e-14 * bin_size**2
     tris, area2 = tris[keep], area2[keep]
-    t_min, t_max = tris[:, :, :2].min(axis=1), tris[:, :, :2].max(axis=1)
+    t_min, t_max = _plan_box(tris)
     lattice = _lattice(pts)
     if lattice is not None:
         return _lattice_hits(tris, area2, t_min, t_max, pts, *lattice)
@@ -411,6 +411,13 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     if not hit_p:
         return np.zeros(0, int), np.zeros(0)
     return np.concatenate(hit_p), np.concatenate(hit_z)
+
+
+def _plan_box(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corners (T, 2) of the triangles' (T, 3, 3) plan bounding boxes (vertex by
+    vertex: a reduction over the short middle axis is several times slower)."""
+    a, b, c = tris[:, 0, :2], tris[:, 1, :2], tris[:, 2, :2]
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
 
 
 def _crossing(T: np.ndarray, p: np.ndarray, area2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

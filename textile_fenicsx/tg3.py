@@ -292,7 +292,7 @@ def _woven_to(el, where: str) -> float | None:
 def _num(v) -> str:
     """Numbers as TexGen writes them, each in the shortest form that reads back to the same double
     (a model written and read again is identical)."""
-    return ", ".join(repr(float(x)) for x in np.atleast_1d(v))
+    return ", ".join(map(repr, np.atleast_1d(np.asarray(v, float)).tolist()))
 
 
 def _section_element(parent, sec: Section, n_points: int):

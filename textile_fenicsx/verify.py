@@ -40,8 +40,29 @@ class Tolerances:
 
 
 def self_intersecting(polygons: np.ndarray) -> np.ndarray:
-    """For polygons (S, n, 2), whether each crosses itself (two non-adjacent edges intersect)."""
-    p = np.asarray(polygons, float)
+    """For polygons (S, n, 2), whether each crosses itself (two non-adjacent edges intersect).
+    A strictly convex polygon (every turn the same way, one turn in all) cannot: only the others
+    have their pairs of edges tested."""
+    out = np.zeros(len(polygons), bool)
+    rest = np.flatnonzero(~_strictly_convex(np.asarray(polygons, float)))
+    if len(rest):
+        out[rest] = _edges_cross(np.asarray(polygons, float)[rest])
+    return out
+
+
+def _strictly_convex(p: np.ndarray) -> np.ndarray:
+    """(S,) whether each polygon (S, n, 2) turns the same way at every vertex (no straight or
+    doubled vertex) and by one full turn in all: a simple convex polygon."""
+    e = np.roll(p, -1, axis=1) - p
+    f = np.roll(e, -1, axis=1)
+    cross = e[..., 0] * f[..., 1] - e[..., 1] * f[..., 0]
+    turning = np.arctan2(cross, np.sum(e * f, axis=-1)).sum(axis=1)
+    one_way = np.all(cross > 0, axis=1) | np.all(cross < 0, axis=1)
+    return one_way & (np.abs(np.abs(turning) - 2 * np.pi) < 1e-6)
+
+
+def _edges_cross(p: np.ndarray) -> np.ndarray:
+    """(S,) whether two non-adjacent edges of each polygon (S, n, 2) cross (every pair tested)."""
     a, b = p, np.roll(p, -1, axis=1)  # edge k: a[k] -> b[k]
     n = p.shape[1]
     i, j = np.triu_indices(n, k=2)
