@@ -152,8 +152,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     times["assemble"] = time.perf_counter() - t
     begin("solve")
     t = time.perf_counter()
-    solution = solve_problem(problem)
-    del problem  # its arrays (pattern, pairs: ~1 kB per dof) are not needed by the second solve
+    solution = solve_problem(problem, keep=True)
     if solution.converged:  # once more with the thickness the new slopes give (slopes.py), and
         # margins that keep the gap field >= 0 between the nodes as well
         dip = widen_margins(ms, solution.w)
@@ -162,10 +161,17 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
                  "dips between nodes; solving again", 100 * change, dip)
         first = solution
         mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile), settings.mould == "auto")
-        solution = solve_problem(ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould),
-                                 start=first)
+        if mould is None:  # the same plates, pairs and pattern: only the gaps moved
+            problem.renew(settings.solver)
+        else:
+            problem.destroy()
+            problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould)
+        solution = solve_problem(problem, start=first)
         solution.iterations += first.iterations
         solution.history = first.history + solution.history
+    else:
+        problem.destroy()
+    del problem
     times["solve"] = time.perf_counter() - t
     corrected = None
     if solution.converged:

@@ -26,10 +26,11 @@ __all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "OUT_OF_CORE", "ContactProblem
 log = logging.getLogger(__name__)
 
 
-def solve_problem(problem: ContactProblem, start: Solution | None = None) -> Solution:
-    """Run the problem's contact iteration and free its PETSc objects; the displacements, gaps and
-    contact states as Functions per yarn. `start`: an earlier solution of a problem with the same
-    unknowns (the same mid-surfaces), whose unknowns the exact method starts from."""
+def solve_problem(problem: ContactProblem, start: Solution | None = None, keep: bool = False) -> Solution:
+    """Run the problem's contact iteration and free its PETSc objects (unless `keep`: for a solve
+    of the problem renewed, ContactProblem.renew); the displacements, gaps and contact states as
+    Functions per yarn. `start`: an earlier solution of a problem with the same unknowns (the same
+    mid-surfaces), whose unknowns the exact method starts from."""
     t0 = time.perf_counter()
     try:
         x0 = None if start is None else start.unknowns
@@ -41,8 +42,9 @@ def solve_problem(problem: ContactProblem, start: Solution | None = None) -> Sol
         out.x.destroy()
         factorisations = problem.factorisations
     finally:
-        problem.destroy()
-        release_freed_memory()  # MUMPS' factors back to the system before the outputs are made
+        if not keep:
+            problem.destroy()
+            release_freed_memory()  # MUMPS' factors back to the system before the outputs are made
     log.info("contact: %s (%d Newton steps, %d factorisations)", out.reason, out.iterations, factorisations)
     return Solution(w=w, gap=gap, contact=contact, iterations=out.iterations, updates=out.updates,
                     history=out.history, max_penetration=pen, penetration_volume=volume, converged=out.converged,

@@ -22,7 +22,7 @@ from textile_fenicsx.solver.parameters import Mould, PlateParameters
 from textile_fenicsx.solver.periodic import Periodicity
 
 __all__ = ["ContactPair", "MouldRows", "Nodes", "PairForms", "build_pairs", "contact_nodes", "gathered_unknowns",
-           "jacobian_values", "mould_rows", "residual_values"]
+           "initial_gap", "jacobian_values", "mould_rows", "residual_values"]
 
 # a node's "other yarn" where it is a platen: no pair, no unknown
 NONE = -1
@@ -75,7 +75,7 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
     scratch, cell_order = {}, {}
     pending, rows, cols = [], [], []
     for (u, l), cells in ms.contact.items():
-        yu, yl = yarns[u], yarns[l]
+        yu = yarns[u]
         if u not in scratch:
             scratch[u] = dolfinx.fem.Function(yu.V, name="gap")
             cell_order[u] = np.argsort(yu.parent_cells)
@@ -91,9 +91,8 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         nnz = int(M.indptr[n_owned])
         forms = PairForms(g, energy, residual, jacobian, dolfinx.fem.form(penetration_volume(g, dx)), M, nnz)
         # the overlap's dofs on u and on l (the same points)
-        dofs = ms.contact_dofs[(u, l)]
-        du, dl = dofs[:, 0], dofs[:, 1]
-        g0 = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
+        du, dl = ms.contact_dofs[(u, l)][:, 0], ms.contact_dofs[(u, l)][:, 1]
+        g0, margin = initial_gap(ms, u, l)
         parent = numbering.parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
         owner = numbering.parent_owner(yu.to_parent[du])
         cu, cl = numbering.unknown(u, parent), numbering.unknown(l, parent)
@@ -105,13 +104,21 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         rows.append(np.concatenate([ui, ui, li, li]))
         cols.append(np.concatenate([uj, lj, uj, lj]))
         owned_cells = sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]
-        margin = ms.contact_margin.get((u, l), np.zeros(len(du)))
         pending.append((u, l, du, parent, owner, g0, margin, cu, cl, owned_cells, forms))
     need = np.unique(np.concatenate([np.concatenate([p[7], p[8]]) for p in pending] + [extra.astype(np.int64)]))
     pairs = [ContactPair(u, l, du, parent, owner, g0, margin, np.searchsorted(need, cu), np.searchsorted(need, cl),
                          cells, forms) for u, l, du, parent, owner, g0, margin, cu, cl, cells, forms in pending]
     cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
     return pairs, (cat(rows), cat(cols)), need
+
+
+def initial_gap(ms: MidSurfaces, u: int, l: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pair's gap before any displacement, bottom of u less top of l, and the margins its
+    nodes keep, at its overlap dofs [mm] (from the mid-surfaces' z0, t and contact margins)."""
+    yu, yl = ms.yarns[u], ms.yarns[l]
+    du, dl = ms.contact_dofs[(u, l)][:, 0], ms.contact_dofs[(u, l)][:, 1]
+    g0 = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
+    return g0, ms.contact_margin.get((u, l), np.zeros(len(du)))
 
 
 def jacobian_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:

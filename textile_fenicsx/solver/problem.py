@@ -16,6 +16,7 @@ frees them in `destroy()`.
 """
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import ufl
@@ -27,8 +28,8 @@ import dolfinx.fem.petsc
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import MidSurfaces
-from textile_fenicsx.solver.contact import (build_pairs, contact_nodes, gathered_unknowns, jacobian_values,
-                                            mould_rows, residual_values)
+from textile_fenicsx.solver.contact import (build_pairs, contact_nodes, gathered_unknowns, initial_gap,
+                                            jacobian_values, mould_rows, residual_values)
 from textile_fenicsx.solver.linear import DirectSolver, SolverError, mumps_error, negative_pivots, null_pivots
 from textile_fenicsx.solver.parameters import Mould, PlateParameters, SolverOptions
 from textile_fenicsx.solver.pattern import FixedPattern
@@ -126,6 +127,27 @@ class ContactProblem:
             self._add_contact(self.b_fixed, [-residual_values(p, g) for p, g in zip(self.pairs, g0)])
         self.K, self.K_fixed = pattern.matrix(), pattern.matrix()
         self.solver = DirectSolver(self.comm, options.linear_options)
+        self.factorisations, self._convex_checked = 0, -1
+
+    def renew(self, options: SolverOptions) -> None:
+        """The problem again, for a solve with these options after the mid-surfaces' thickness and
+        contact margins changed (slopes.py, widen_margins): the plates, the pattern, the pairs'
+        forms and the direct solver (its analysis) are kept; the pairs' initial gaps and margins
+        are read again, and for the exact method the apart spring's load at them, -T^T J g0, moves
+        by -T^T J (g0_new - g0_old) (J does not depend on g). Not for a problem with a mould (its
+        platens' gaps are rows of its own): build a new one."""
+        if self.mould is not None:
+            raise ValueError("a problem with a mould cannot be renewed: build a new one")
+        old = [p.g0 for p in self.pairs]
+        self.pairs = [replace(p, g0=g0, margin=margin) for p, (g0, margin) in
+                      zip(self.pairs, (initial_gap(self.ms, p.upper, p.lower) for p in self.pairs))]
+        if self.exact:
+            self._add_contact(self.b_fixed, [-residual_values(p, p.g0 - g) for p, g in zip(self.pairs, old)])
+        if self.nodes is not None:  # the same nodes of the same pairs (no platens)
+            g0 = np.concatenate([p.g0 - p.margin for p in self.pairs] + [np.zeros(0)])
+            at = np.concatenate([[0], np.cumsum([len(p.g0) for p in self.pairs])])[self.nodes.pair] + self.nodes.at
+            self.nodes = replace(self.nodes, g0=g0[at])
+        self.options = options
         self.factorisations, self._convex_checked = 0, -1
 
     def _translation(self, kf: float, moulded: bool) -> None:
