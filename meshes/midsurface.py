@@ -248,16 +248,29 @@ def _gap_margins(ms: MidSurfaces) -> None:
     textile = ms.projected.textile
     X = msh.geometry.x
 
+    def points(u, l):  # (cells x MARGIN_POINTS, 2) in-plane points of the pair's cells
+        corners = X[msh.geometry.dofmap[ms.contact[(u, l)]]][:, :, :2]  # (c, 3, 2)
+        ref = MARGIN_POINTS
+        return (corners[:, None, 0] + ref[None, :, :1] * (corners[:, None, 1] - corners[:, None, 0])
+                + ref[None, :, 1:] * (corners[:, None, 2] - corners[:, None, 0])).reshape(-1, 2)
+
+    # each yarn's rays once, at the points of every pair it is in: the bottom of a pair's upper
+    # yarn and the top of its lower yarn there
+    surface = {}
+    for k in range(len(textile.yarns)):
+        mine = [(pair, "bottom" if pair[0] == k else "top") for pair in ms.contact if k in pair]
+        if not mine:
+            continue
+        xy = [points(*pair) for pair, _ in mine]
+        bot, top = textile.columns(np.concatenate(xy), yarns=[k]).envelope(len(textile.yarns))
+        ends = np.cumsum([len(a) for a in xy])[:-1]
+        for (pair, side), b, t in zip(mine, np.split(bot[:, k], ends), np.split(top[:, k], ends)):
+            surface[pair, side] = b if side == "bottom" else t
+
     def shortfall(u, l):
         g0, dofs = _pair_gaps(ms, u, l)
-        cells = ms.contact[(u, l)]
         interp = g0[dofs] @ basis.T                        # (c, points): the P2 gap there
-        corners = X[msh.geometry.dofmap[cells]][:, :, :2]  # (c, 3, 2)
-        ref = MARGIN_POINTS
-        xy = (corners[:, None, 0] + ref[None, :, :1] * (corners[:, None, 1] - corners[:, None, 0])
-              + ref[None, :, 1:] * (corners[:, None, 2] - corners[:, None, 0])).reshape(-1, 2)
-        bot, top = textile.columns(xy, yarns=[u, l]).envelope(len(textile.yarns))
-        exact = (bot[:, u] - top[:, l]).reshape(len(cells), -1)
+        exact = (surface[(u, l), "bottom"] - surface[(u, l), "top"]).reshape(len(dofs), -1)
         return np.nan_to_num(interp - exact, nan=0.0).max(axis=1).clip(min=0.0)
 
     _add_margins(ms, shortfall)
