@@ -313,6 +313,46 @@ def test_a_node_seen_by_several_ranks_is_claimed_by_one():
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("method", ["exact", "penalty"])
+def test_a_renewed_problem_is_the_problem_built_afresh(method):
+    # The second solve renews the first's problem (ContactProblem.renew) after the slopes changed
+    # the plates' thickness and the margins grew: its initial gaps, margins, constraints' gaps,
+    # load (the apart spring's -T^T J g0 moved by -T^T J dg0: J does not depend on g) and
+    # matrices must be those of a problem built from scratch on the changed mid-surfaces, to
+    # round-off, on any partition; and with a mould it refuses (the platens are rows of their own)
+    from textile_fenicsx.config import load_model
+    from textile_fenicsx.meshes.midsurface import widen_margins
+    from textile_fenicsx.slopes import slope_thickness
+
+    ms = mid_surfaces(projected_mesh(load_model(REPO / "reference" / "models" / "satin4.tg3"), MeshOptions(0.5)))
+    options = SolverOptions(method=method)
+    renewed = ContactProblem(ms, options=SolverOptions(method=method, displacement_tol=1e-4))
+    first = solve_problem(renewed, keep=True)
+    assert widen_margins(ms, first.w) > 0 and slope_thickness(ms, first.w) > 0.01
+    renewed.renew(options)
+    fresh = ContactProblem(ms, options=options)
+    for a, b in zip(renewed.pairs, fresh.pairs):
+        assert np.array_equal(a.g0, b.g0) and np.array_equal(a.margin, b.margin)
+    if method == "exact":
+        assert np.array_equal(renewed.nodes.g0, fresh.nodes.g0)
+    scale = fresh.b_fixed.norm()
+    difference = fresh.b_fixed.copy()
+    difference.axpy(-1.0, renewed.b_fixed)
+    assert scale > 0 and difference.norm() < 1e-12 * scale
+    assert np.array_equal(renewed.pattern.values(), fresh.pattern.values())
+    assert renewed.options is options and renewed.factorisations == 0
+    second = solve_problem(renewed)
+    assert second.converged
+    fresh.destroy()
+    with pytest.raises(ValueError, match="mould"):
+        moulded = ContactProblem(ms, options=SolverOptions(), mould=Mould(-1.0, 1.0))
+        try:
+            moulded.renew(SolverOptions())
+        finally:
+            moulded.destroy()
+
+
+@pytest.mark.mpi
 def test_widened_margins_keep_the_gap_field_apart_between_the_nodes():
     # The exact method holds each node's gap >= its margin; the P2 gap field, >= 0 at a cell's six
     # nodes, can still be negative between them (satin4.tg3 at seed 0.5: 5.6e-6 mm^3 of it).
