@@ -25,8 +25,12 @@ DIRECT_LU = {
 # singular system (a yarn held by nothing) is reported, not solved quietly. ICNTL(13) = 1: no
 # ScaLAPACK on the root front, so that INFOG(12), the number of negative pivots (the inertia), is
 # exact on any number of ranks: a convex energy's matrix has none (MUMPS counts them with SYM = 1
-# too). ICNTL(7) = 2, AMF ordering: Debian's MUMPS has no METIS/SCOTCH and its automatic choice is
-# PORD; on a 3.3e5-dof satin coupon AMF analysed + factorised + solved in 2.9 s vs PORD's 7.0 s.
+# too). ICNTL(7) = 4, PORD ordering (Debian's MUMPS has no METIS/SCOTCH). Measured 2026-11-24 on
+# satin4, whole solves (23-31 factorisations, one analysis since the second solve renews the
+# problem): seed 0.125 serial PORD 17.7 s, AMF 19.5, AMD 18.3, QAMD 18.0; on 2 ranks PORD 11.4, AMF
+# 11.8; seed 0.25 PORD 2.3, AMF 2.4; the 4 x 4 coupon (3.3e5 dofs) PORD 67.9 s, AMF 68.4. (AMF had
+# been chosen from an earlier measurement on that coupon, one analysis + factorisation + solve: 2.9 s
+# with AMF, 7.0 s with PORD; whole solves no longer show it.)
 # ICNTL(14) = 50: the factorisation's workspace is the analysis' estimate + 50 % (MUMPS' default
 # 20 %). On 2 ranks, MUMPS places parts of the fronts on the less loaded process while it
 # factorises, so a rank can need more than estimated: with four MPI processes sharing the 2 cores,
@@ -36,7 +40,7 @@ DIRECT_LDLT = {
     "ksp_type": "preonly",
     "pc_type": "cholesky",
     "pc_factor_mat_solver_type": "mumps",
-    "mat_mumps_icntl_7": 2,
+    "mat_mumps_icntl_7": 4,
     "mat_mumps_icntl_13": 1,
     "mat_mumps_icntl_14": 50,
     "mat_mumps_icntl_24": 1,
