@@ -442,7 +442,7 @@ def test_direct_solver_applies_its_options_and_removes_them():
     solver = DirectSolver(MPI.COMM_WORLD, DIRECT_LDLT, prefix="tfx_test_options")
     solver.factor(A)
     F = solver.ksp.getPC().getFactorMatrix()
-    assert F.getMumpsIcntl(7) == 2 and F.getMumpsIcntl(13) == 1 and F.getMumpsIcntl(24) == 1
+    assert F.getMumpsIcntl(7) == 4 and F.getMumpsIcntl(13) == 1 and F.getMumpsIcntl(24) == 1
     assert F.getMumpsIcntl(14) == 50
     left = [k for k in PETSc.Options().getAll() if k.startswith("tfx_test_options")]
     assert left == []
