@@ -152,26 +152,28 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     times["assemble"] = time.perf_counter() - t
     begin("solve")
     t = time.perf_counter()
-    solution = solve_problem(problem, keep=True)
-    if solution.converged:  # once more with the thickness the new slopes give (slopes.py), and
-        # margins that keep the gap field >= 0 between the nodes as well
-        dip = widen_margins(ms, solution.w)
-        change = slope_thickness(ms, solution.w)
-        log.info("slopes: thickness changed by up to %.2f %%; margins widened by up to %.1e mm where the gap "
-                 "dips between nodes; solving again", 100 * change, dip)
-        first = solution
-        mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile), settings.mould == "auto")
-        if mould is None:  # the same plates, pairs and pattern: only the gaps moved
-            problem.renew(settings.solver)
-        else:
-            problem.destroy()
-            problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould)
-        solution = solve_problem(problem, start=first)
-        solution.iterations += first.iterations
-        solution.history = first.history + solution.history
-    else:
+    try:
+        solution = solve_problem(problem, keep=True)
+        if solution.converged:  # once more with the thickness the new slopes give (slopes.py), and
+            # margins that keep the gap field >= 0 between the nodes as well
+            dip = widen_margins(ms, solution.w)
+            change = slope_thickness(ms, solution.w)
+            log.info("slopes: thickness changed by up to %.2f %%; margins widened by up to %.1e mm where the gap "
+                     "dips between nodes; solving again", 100 * change, dip)
+            first = solution
+            mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile), settings.mould == "auto")
+            if mould is None:  # the same plates, pairs and pattern: only the gaps moved
+                problem.renew(settings.solver)
+            else:
+                problem.destroy()
+                problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould)
+            solution = solve_problem(problem, start=first)
+            solution.iterations += first.iterations
+            solution.history = first.history + solution.history
+    finally:  # (destroying twice is harmless: the second solve has freed it already)
         problem.destroy()
-    del problem
+        del problem
+        release_freed_memory()
     times["solve"] = time.perf_counter() - t
     corrected = None
     if solution.converged:
