@@ -6,8 +6,8 @@ pyvista and matplotlib 0.5 s, an X server 0.2 s, the two 3D views 0.9 s and the 
 `python -m textile_fenicsx.figures` at once: the child imports its libraries, starts its X
 server and draws the input's view (the CLI hands it over first) while the run meshes and solves,
 and draws the other figures into a folder of its own while the run measures and writes its other
-files; `collect` waits for the figures and moves them into the run's folder. A figure that fails is an error naming its file, as it was when
-drawn in process.
+files; `collect` waits for the figures and moves them into the run's folder. A figure that fails
+is an error naming its file, as it was when drawn in process.
 
 The child is not part of an MPI job: the launcher's variables are removed from its environment
 and it imports neither mpi4py nor DOLFINx. Jobs are pickled to files in the child's folder and
@@ -96,7 +96,7 @@ class Painter:
             line = self._child.stdout.readline()
             if not line:  # the child ended without answering
                 for file_name in self._pending.values():
-                    failed = failed or (file_name, f"the figure process ended ({self._reason()})")
+                    failed = failed or (Path(folder) / file_name, f"the figure process ended ({self._reason()})")
                 self._pending.clear()
                 break
             status, _, rest = line.rstrip("\n").partition(" ")
@@ -107,9 +107,9 @@ class Painter:
                     shutil.move(self.folder / name, target)
                 done.append(target)
             else:
-                failed = failed or (target.name, reason or "no reason given")
+                failed = failed or (target, reason or "no reason given")
         if failed:
-            raise OSError(5, f"the figure could not be drawn: {failed[1]}", str(Path(folder) / failed[0]))
+            raise OSError(5, f"the figure could not be drawn: {failed[1]}", str(failed[0]))
         return done
 
     def _reason(self) -> str:

@@ -249,8 +249,9 @@ class Textile:
         rows = []
         odd = 0
         region = (*(probe[:, 0].min(), probe[:, 0].max()), *(probe[:, 1].min(), probe[:, 1].max())) if len(probe) else None
+        lattice = _lattice(probe) if len(probe) else None  # the same points for every yarn
         for i in range(len(self.yarns)) if yarns is None else yarns:
-            pidx, z = _vertical_hits(self.triangles(i, region), probe, self.resolution.spacing)
+            pidx, z = _vertical_hits(self.triangles(i, region), probe, self.resolution.spacing, lattice)
             order = np.lexsort((z, pidx))
             pidx, z = pidx[order], z[order]
             starts = np.flatnonzero(np.r_[True, pidx[1:] != pidx[:-1]]) if len(pidx) else np.zeros(0, int)
@@ -353,7 +354,8 @@ def _closed_tube(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pts, faces
 
 
-def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[np.ndarray, np.ndarray]:
+def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float,
+                   lattice: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Crossings of vertical lines through pts (N, 2) with triangles (T, 3, 3).
 
     Returns (point index, z) of every crossing. Triangles and points are matched through a uniform
@@ -361,8 +363,9 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     are `bin_size` (the surface's station spacing) or smaller where the triangles are much smaller
     (yarns with dense master nodes), and the candidate pairs are tested in chunks, so the memory
     stays bounded whatever the triangles' sizes. Points on a regular lattice (the metrics' grid, a
-    cut along x or y) need no bins: each triangle's candidates are the nodes in its bounding box
-    (_lattice_hits; the same crossings, 3 x faster on a corrected satin's grid).
+    cut along x or y; `lattice`, what _lattice found for them) need no bins: each triangle's
+    candidates are the nodes in its bounding box (_lattice_hits; the same crossings, 3 x faster on
+    a corrected satin's grid).
     """
     if len(tris) == 0 or len(pts) == 0:
         return np.zeros(0, int), np.zeros(0)
@@ -371,7 +374,6 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     keep = np.abs(area2) > 1e-14 * bin_size**2
     tris, area2 = tris[keep], area2[keep]
     t_min, t_max = _plan_box(tris)
-    lattice = _lattice(pts)
     if lattice is not None:
         return _lattice_hits(tris, area2, t_min, t_max, pts, *lattice)
     lo_p, hi_p = pts.min(axis=0), pts.max(axis=0)
@@ -396,10 +398,7 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
     n = np.searchsorted(spid, bid, "right") - start
     del bid
     hit_p, hit_z = [], []
-    ends = np.cumsum(n)
-    first = 0
-    while first < len(n):  # (triangle, bin) entries whose candidate pairs add up to at most _CHUNK
-        last = max(int(np.searchsorted(ends, (ends[first - 1] if first else 0) + _CHUNK, "right")), first + 1)
+    for first, last in _chunks(n):  # (triangle, bin) entries
         nn = n[first:last]
         t_of = tri_ids[np.repeat(rep[first:last], nn)]
         p_of = order[np.repeat(start[first:last], nn) + np.arange(nn.sum()) - np.repeat(np.cumsum(nn) - nn, nn)]
@@ -407,10 +406,20 @@ def _vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float) -> tuple[
         inside, z = _crossing(T, p, area2[t_of])
         hit_p.append(p_of[inside])
         hit_z.append(z)
-        first = last
     if not hit_p:
         return np.zeros(0, int), np.zeros(0)
     return np.concatenate(hit_p), np.concatenate(hit_z)
+
+
+def _chunks(counts: np.ndarray):
+    """(first, last) slices of consecutive entries whose counts of candidate pairs add up to at
+    most _CHUNK (one entry at least)."""
+    ends = np.cumsum(counts)
+    first = 0
+    while first < len(counts):
+        last = max(int(np.searchsorted(ends, (ends[first - 1] if first else 0) + _CHUNK, "right")), first + 1)
+        yield first, last
+        first = last
 
 
 def _plan_box(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -464,11 +473,8 @@ def _lattice_hits(tris, area2, t_min, t_max, pts, origin, steps, shape, node):
     span = np.maximum(hi - lo + 1, 0)
     counts = span[:, 0] * span[:, 1]
     some = np.flatnonzero(counts)
-    ends = np.cumsum(counts[some])
     hit_p, hit_z = [], []
-    first = 0
-    while first < len(some):
-        last = max(int(np.searchsorted(ends, (ends[first - 1] if first else 0) + _CHUNK, "right")), first + 1)
+    for first, last in _chunks(counts[some]):
         tri, n = some[first:last], counts[some[first:last]]
         t_of = np.repeat(tri, n)
         local = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
@@ -480,7 +486,6 @@ def _lattice_hits(tris, area2, t_min, t_max, pts, origin, steps, shape, node):
         inside, z = _crossing(T, p, area2[t_of])
         hit_p.append(p_of[inside])
         hit_z.append(z)
-        first = last
     if not hit_p:
         return np.zeros(0, int), np.zeros(0)
     return np.concatenate(hit_p), np.concatenate(hit_z)
