@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi docker-test bench sweep clean
+.PHONY: help env demo demos test test-serial test-mpi docker-test bench bench-outer sweep clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -14,6 +14,8 @@ help:
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
+	@echo "make bench-outer  CG with yarn-block and multigrid preconditioners on the contact steps' matrices (satin4,"
+	@echo "                  seed 0.25): why the steps use a direct solve (~1 min); table on stdout"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
 	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
 	@echo "                  2 ranks) in the image as a non-root user and compare them with bin/fenicsx-env's, run"
@@ -45,6 +47,9 @@ docker-test:
 bench:
 	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
 	$(ENV) env TEXTILE_FENICSX_TEXGEN_PYTHON=$$texgen python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
+
+bench-outer:
+	$(ENV) python3 bench/outer_solve.py
 
 sweep:
 	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json
