@@ -46,8 +46,9 @@ def yarn_splits(problem: ContactProblem) -> list[PETSc.IS]:
     return splits
 
 
-def cg_iterations(problem: ContactProblem, options: dict, splits=None) -> int:
-    """CG iterations on the last Newton matrix for b_fixed (3000 and more: not converged)."""
+def cg_solve(problem: ContactProblem, options: dict, splits=None) -> tuple[int, PETSc.Vec]:
+    """CG on the last Newton matrix for b_fixed (as the direct solve takes it): its iterations (3000 and more: not converged) and
+    the solution (the caller destroys it)."""
     ksp = PETSc.KSP().create(problem.comm)
     ksp.setOptionsPrefix("outer_")
     database = PETSc.Options()
@@ -58,13 +59,20 @@ def cg_iterations(problem: ContactProblem, options: dict, splits=None) -> int:
         ksp.getPC().setType("fieldsplit")
         ksp.getPC().setFieldSplitIS(*[(str(i), s) for i, s in enumerate(splits)])
     ksp.setFromOptions()
-    x = problem.b_fixed.duplicate()
-    ksp.solve(problem.b_fixed, x)
+    b, x = problem.b_fixed.copy(), problem.b_fixed.duplicate()
+    problem.hold_pin(b)
+    ksp.solve(b, x)
+    b.destroy()
     its = ksp.getIterationNumber() if ksp.getConvergedReason() > 0 else max(ksp.getIterationNumber(), 3000)
     for key in {**CG, **options}:
         database.delValue("outer_" + key)
-    x.destroy()
     ksp.destroy()
+    return its, x
+
+
+def cg_iterations(problem: ContactProblem, options: dict, splits=None) -> int:
+    its, x = cg_solve(problem, options, splits)
+    x.destroy()
     return its
 
 

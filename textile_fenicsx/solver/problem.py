@@ -235,14 +235,19 @@ class ContactProblem:
         self.factorisations += 1
         return self.K
 
-    def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, what: str) -> None:
-        """x = K^-1 rhs with K's last factorisation (newton_matrix), checked: converged, finite, no
-        null pivots, and the inertia of a convex energy (no negative pivot). The pinned unknown
-        does not move (its entry of rhs is set to 0)."""
+    def hold_pin(self, rhs: PETSc.Vec) -> None:
+        """Set the pinned unknown's entry of a right-hand side to 0 (its row of the Newton matrix is
+        the identity's: the solve then leaves it in place)."""
         if self.pin is not None:
             first, end = rhs.getOwnershipRange()
             if first <= self.pin < end:
                 rhs.getArray()[self.pin - first] = 0.0
+
+    def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, what: str) -> None:
+        """x = K^-1 rhs with K's last factorisation (newton_matrix), checked: converged, finite, no
+        null pivots, and the inertia of a convex energy (no negative pivot). The pinned unknown
+        does not move (its entry of rhs is set to 0)."""
+        self.hold_pin(rhs)
         self.solver.solve(rhs, x)
         ksp = self.solver.ksp
         reason, nulls, negative = ksp.getConvergedReason(), null_pivots(ksp), negative_pivots(ksp)
