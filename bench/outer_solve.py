@@ -25,6 +25,7 @@ from textile_fenicsx.meshes.midsurface import mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
 from textile_fenicsx.pipeline import Settings
 from textile_fenicsx.solver import ContactProblem
+from textile_fenicsx.solver.linear import DirectSolver
 from textile_fenicsx.solver.newton import MAX_WEIGHT, _InteriorPoint
 from textile_fenicsx.tg3 import read_tg3
 
@@ -47,26 +48,20 @@ def yarn_splits(problem: ContactProblem) -> list[PETSc.IS]:
 
 
 def cg_solve(problem: ContactProblem, options: dict, splits=None) -> tuple[int, PETSc.Vec]:
-    """CG on the last Newton matrix for b_fixed (as the direct solve takes it): its iterations (3000 and more: not converged) and
-    the solution (the caller destroys it)."""
-    ksp = PETSc.KSP().create(problem.comm)
-    ksp.setOptionsPrefix("outer_")
-    database = PETSc.Options()
-    for key, value in {**CG, **options}.items():
-        database["outer_" + key] = value
-    ksp.setOperators(problem.K)
+    """CG on the last Newton matrix for b_fixed (as the direct solve takes it): its iterations
+    (3000 and more: not converged) and the solution (the caller destroys it). The KSP is
+    linear.DirectSolver's, which owns any options dict under a prefix of its own."""
+    solver = DirectSolver(problem.comm, {**CG, **options}, prefix="outer")
     if splits is not None:
-        ksp.getPC().setType("fieldsplit")
-        ksp.getPC().setFieldSplitIS(*[(str(i), s) for i, s in enumerate(splits)])
-    ksp.setFromOptions()
+        solver.ksp.getPC().setFieldSplitIS(*[(str(i), s) for i, s in enumerate(splits)])
+    solver.factor(problem.K)  # sets up the preconditioner (the yarns' factors, or the multigrid)
     b, x = problem.b_fixed.copy(), problem.b_fixed.duplicate()
     problem.hold_pin(b)
-    ksp.solve(b, x)
+    solver.solve(b, x)
     b.destroy()
+    ksp = solver.ksp
     its = ksp.getIterationNumber() if ksp.getConvergedReason() > 0 else max(ksp.getIterationNumber(), 3000)
-    for key in {**CG, **options}:
-        database.delValue("outer_" + key)
-    ksp.destroy()
+    solver.destroy()
     return its, x
 
 
