@@ -140,7 +140,9 @@ def test_cli_build_and_report(tmp_path):
     d = json.loads(rep.stdout)
     assert set(d) >= {"yarn_volume", "interpenetration", "thickness", "crimp", "vf"}
     assert d["yarn_volume"]["total"] == pytest.approx(sum(d["yarn_volume"]["per_yarn"]))
-    assert len(d["crimp"]) == 4 and d["vf"] is None
+    # no fibre data: the stated default intra-yarn fraction, said so
+    assert len(d["crimp"]) == 4 and d["fibre_data"] == "default" and d["yarn_vf"] == [0.65] * 4
+    assert d["vf"] == pytest.approx(0.65 * d["yarn_volume"]["total"] / (4 * 4 * d["thickness"]))
 
 
 @pytest.mark.serial

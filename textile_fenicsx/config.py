@@ -24,7 +24,9 @@ or a generic yarn list (what `save_model` writes, JSON):
 
 Section tables: type = ellipse | lenticular | power_ellipse | polygon, with width, height and
 (lenticular) distortion, (power_ellipse) power and x_offset, (polygon) points = [[s, u], ...].
-A top-level `name` and `[resolution]` (spacing, section_points, per_segment) are optional. Unknown keys are
+A top-level `name` and `[resolution]` (spacing, section_points, per_segment) are optional. Fibre data,
+`fibres = {count = 12000, diameter = 0.007}` (also area [mm^2], density [g/cm^3], linear_density
+[tex]: fibres.Fibres), may be given per yarn, or once at the top level for every yarn without its own. Unknown keys are
 errors naming the key, so a typo never passes silently.
 """
 
@@ -34,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from textile_fenicsx import fibres as fibre_data
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
 from textile_fenicsx.limits import MAX_NODES_PER_YARN, MAX_YARNS, check_file_size, check_many
@@ -151,9 +154,7 @@ def yarn_from_dict(d, where: str) -> Yarn:
                 raise FormatError(f"{where}.{key}: expected true or false, got {d[key]!r}")
             opt[key] = d[key]
     if "fibres" in d:
-        f = d["fibres"]
-        _keys(f, f"{where}.fibres", {"count", "diameter"}, {"count", "diameter"})
-        opt["fibres"] = (f["count"], f["diameter"])
+        opt["fibres"] = fibre_data.from_dict(d["fibres"], f"{where}.fibres")
     if "interpolation" in d:
         opt["interpolation"] = d["interpolation"]
     if isinstance(d["nodes"], list):
@@ -176,7 +177,7 @@ def yarn_to_dict(y: Yarn) -> dict:
     if y.force_node_tangent_in_plane:
         d["force_node_tangent_in_plane"] = True
     if y.fibres is not None:
-        d["fibres"] = {"count": y.fibres[0], "diameter": y.fibres[1]}
+        d["fibres"] = y.fibres.as_dict()
     s = y.section
     if isinstance(s, ConstantSection):
         d["section"] = section_to_dict(s.section)
@@ -196,7 +197,8 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     """A Textile from a parsed TOML/JSON description (see the module docstring)."""
     from textile_fenicsx.weaves import build
 
-    _keys(d, where, {"name", "weave", "cell", "yarns", "resolution"})
+    _keys(d, where, {"name", "weave", "cell", "yarns", "resolution", "fibres"})
+    default_fibres = fibre_data.from_dict(d["fibres"], f"{where}.fibres") if "fibres" in d else None
     resolution = Resolution()
     if "resolution" in d:
         _keys(d["resolution"], f"{where}.resolution", {"spacing", "section_points", "per_segment"})
@@ -219,6 +221,7 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
             raise FormatError(f"{where}.weave: {e}") from None
         textile.name = str(d.get("name", kind))
         textile.resolution = resolution
+        _give_fibres(textile, default_fibres)
         try:
             textile.check_size()
         except TextileError as e:
@@ -238,12 +241,20 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     yarns = [yarn_from_dict(y, f"{where}.yarns[{k}]") for k, y in enumerate(d["yarns"])]
     try:
         textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+        _give_fibres(textile, default_fibres)
         textile.check_size()
         return textile
     except FormatError:
         raise
     except TextileError as e:  # the yarns do not make a periodic textile in this cell, or too large
         raise FormatError(f"{where}: {e}") from None
+
+
+def _give_fibres(textile: Textile, fibres) -> None:
+    """The model's `[fibres]` table is the fibre data of every yarn that has none of its own."""
+    for y in textile.yarns:
+        if y.fibres is None:
+            y.fibres = fibres
 
 
 def textile_to_dict(t: Textile) -> dict:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from textile_fenicsx import fibres as fibre_data
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
 from textile_fenicsx.limits import (MAX_NODES, MAX_NODES_PER_YARN, MAX_POLYGON_POINTS, MAX_SIZE, MAX_YARNS, MIN_LENGTH,
@@ -164,11 +165,7 @@ def _yarn(el, textile_where: str) -> Yarn:
     if ysec is None:
         raise FormatError(f"{where}: no <YarnSection>")
     angles = per_node("Angle", np.zeros(1))
-    fibres = None
-    if el.get("FibresPerYarn") is not None and el.get("FibreDiameterValue") is not None:
-        count, diameter = _attr(el, "FibresPerYarn", where), _attr(el, "FibreDiameterValue", where)
-        if count > 0 and diameter > 0:
-            fibres = (count, diameter)
+    fibres = fibre_data.from_tg3(el, where)
     try:
         return Yarn(
             nodes=pos,
@@ -262,6 +259,10 @@ def read_tg3(path, textile: str | None = None) -> Textile:
             raise FormatError(f"{where}: <Yarn index={y.get('index')!r}> is not a whole number") from None
 
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
+    default = fibre_data.from_tg3(el, where)  # the textile's fibre data: for yarns without their own
+    for y in yarns:
+        if y.fibres is None:
+            y.fibres = default
     cell = _domain(el, yarns, where)
     try:
         woven_to = _woven_to(el, where)
@@ -335,8 +336,7 @@ def tg3_tree(textile: Textile) -> ET.ElementTree:
         yel = ET.SubElement(tex, "Yarn", index=str(i), NumSlaveNodes=str(max(40, 4 * len(y.nodes))),
                             NumSectionPoints=str(n_sec), NeedsBuilding="7")
         if y.fibres is not None:
-            yel.attrib.update(FibresPerYarn=_num(y.fibres[0]), FibreDiameterValue=_num(y.fibres[1]),
-                              FibreDiameterUnits="mm")
+            yel.attrib.update(fibre_data.tg3_attributes(y.fibres))
         ET.SubElement(yel, "Interpolation", type=INTERPOLATION_OUT[y.interpolation],
                       Periodic=str(int(y.periodic)), ForceInPlaneTangent=str(int(y.force_in_plane_tangent)),
                       ForceMasterNodeTangent=str(int(y.force_node_tangent_in_plane)))

@@ -17,6 +17,7 @@ from scipy.interpolate import CubicSpline
 
 from textile_fenicsx import limits
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.sections import Section, blend
 
 INTERPOLATIONS = ("bezier", "cubic", "linear")
@@ -75,8 +76,8 @@ class Yarn:
     nodes: (N, 3) master node positions. section: ConstantSection, NodeSections or PositionSections.
     repeats: (k, 3) vectors by which the yarn repeats (usually the cell's). tangents, ups: optional
     (N, 3) per-node tangent (zero rows: computed) and up vectors (zero rows: +z). angles: per-node
-    section rotation about the tangent [rad]. fibres: optional (count, diameter [mm]) for volume
-    fraction.
+    section rotation about the tangent [rad]. fibres: optional fibre data (fibres.Fibres; a pair
+    (count, diameter [mm]) is taken as such), for the fibre volume fraction.
     """
 
     nodes: np.ndarray
@@ -89,7 +90,7 @@ class Yarn:
     angles: np.ndarray | None = None
     force_in_plane_tangent: bool = False
     force_node_tangent_in_plane: bool = False
-    fibres: tuple | None = None
+    fibres: Fibres | None = None
     name: str = ""
 
     def __post_init__(self):
@@ -131,10 +132,13 @@ class Yarn:
                 if value.shape != shape or not np.all(np.isfinite(value)):
                     raise TextileError(f"{label}: {attr} must be finite with shape {shape}, got {value.shape}")
                 setattr(self, attr, value)
-        if self.fibres is not None:
-            count, diameter = self.fibres
-            self.fibres = (limits.check_range(f"{label}: fibre count", count, 1, 1e7),
-                           limits.check_length(f"{label}: fibre diameter", diameter, 1.0, 1e-4))
+        if isinstance(self.fibres, tuple) and len(self.fibres) == 2:
+            try:
+                self.fibres = Fibres(count=self.fibres[0], diameter=self.fibres[1])
+            except TextileError as e:
+                raise TextileError(f"{label}: {e}") from None
+        if self.fibres is not None and not isinstance(self.fibres, Fibres):
+            raise TextileError(f"{label}: fibres must be fibre data (Fibres), got {self.fibres!r:.60}")
         self._spline = None
         self._node_tangents = None
 
