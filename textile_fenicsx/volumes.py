@@ -1,0 +1,92 @@
+"""The volume-mesh stage: a textile model -> a periodic volume mesh with its fields (DESIGN.md 12).
+
+`volume_mesh(textile, options, comm)` picks the cell (`meshes.volume.cell_box`), each yarn's fibre
+volume fraction (the model's fibre data, or `options.yarn_vf`, or the stated default), checks the
+memory, and runs the mesher of `options.kind` on rank 0: `meshes.voxel` or `meshes.tetra`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from mpi4py import MPI
+
+from textile_fenicsx import limits
+from textile_fenicsx.errors import TextileError
+from textile_fenicsx.meshes.volume import KINDS, VolumeMesh, cell_box
+from textile_fenicsx.textile import Textile
+
+log = logging.getLogger(__name__)
+
+# The densest packing of parallel round fibres (hexagonal): no yarn can hold more.
+MAX_PACKING = np.pi / (2 * np.sqrt(3))
+
+
+@dataclass(frozen=True)
+class VolumeOptions:
+    """How to mesh the cell.
+
+    kind: "voxel" (hexahedra, phase at their centres) or "tet" (conforming tetrahedra).
+    size: element size H [mm]. yarn_vf: every yarn's intra-yarn fibre volume fraction [-], instead
+    of the model's fibre data. z_range: the cell through the thickness (zmin, zmax) [mm], e.g. a
+    mould's cavity; None: the yarns' own extent. memory_limit: largest memory [GB] the mesh and
+    its cell problems may take (default: what the system has available).
+    """
+
+    kind: str = "voxel"
+    size: float = 0.2
+    yarn_vf: float | None = None
+    z_range: tuple[float, float] | None = None
+    memory_limit: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise TextileError(f"volume mesh kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        limits.check_length("volume mesh size", self.size)
+        if self.yarn_vf is not None:
+            limits.check_range("yarn fibre volume fraction (--yarn-vf)", self.yarn_vf, 1e-6, MAX_PACKING)
+        if self.memory_limit is not None:
+            limits.check_range("memory limit", self.memory_limit, 1e-6, limits.MAX_MEMORY_GB, " GB")
+
+
+def fibre_fractions(textile: Textile, options: VolumeOptions) -> list[float]:
+    """Each yarn's intra-yarn fibre volume fraction: options.yarn_vf, else the model's fibre data (the
+    stated default where it has none). One above the densest packing of fibres is refused."""
+    if options.yarn_vf is not None:
+        return [options.yarn_vf] * len(textile.yarns)
+    from textile_fenicsx.metrics import yarn_fibre_fractions
+
+    vf, _ = yarn_fibre_fractions(textile)
+    for y, v in zip(textile.yarns, vf):
+        if v > MAX_PACKING:
+            raise TextileError(f"{y.name}: its fibre data give an intra-yarn fibre volume fraction of {v:.3f}, above "
+                               f"the densest packing of round fibres ({MAX_PACKING:.3f}); check its fibre data "
+                               "(fibres per yarn, diameter, area, linear density, density) or give --yarn-vf")
+    return vf
+
+
+def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
+                comm: MPI.Comm = MPI.COMM_WORLD) -> VolumeMesh | None:
+    """The periodic volume mesh of the textile (on rank 0; None on the other ranks). Collective:
+    an error on rank 0 is raised on every rank."""
+    result, error = None, None
+    if comm.rank == 0:
+        try:
+            box = cell_box(textile, options.z_range)
+            vf = fibre_fractions(textile, options)
+            if options.kind == "voxel":
+                from textile_fenicsx.meshes.voxel import voxel_mesh
+
+                result = voxel_mesh(textile, box, options.size, vf)
+            else:
+                from textile_fenicsx.meshes.tetra import tet_mesh
+
+                result = tet_mesh(textile, box, options.size, vf)
+        except TextileError as e:
+            error = e
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return result
