@@ -408,6 +408,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
                    "the thickness a 3D weave is woven to (TexGen's FabricThickness), none for other fabrics")
     p.set_defaults(run=_solve)
+    from textile_fenicsx.cli_volume import add_commands
+
+    add_commands(commands)
     return parser
 
 

@@ -3,12 +3,14 @@
 `volume_mesh(textile, options, comm)` picks the cell (`meshes.volume.cell_box`), each yarn's fibre
 volume fraction (the model's fibre data, or `options.yarn_vf`, or the stated default), checks the
 memory, and runs the mesher of `options.kind` on rank 0: `meshes.voxel` or `meshes.tetra`.
+`mesh_cell(...)` does that and distributes the mesh to DOLFINx: a `CellMesh`, which writes the files.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
@@ -90,3 +92,38 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
     if error is not None:
         raise error
     return result
+
+
+@dataclass(eq=False)
+class CellMesh:
+    """A meshed cell: the mesh arrays (on rank 0; None elsewhere), the same mesh distributed in DOLFINx
+    with its phase tags and fields, and the mesher's report (every rank)."""
+
+    mesh: VolumeMesh | None
+    fields: object  # volume_files.VolumeFields
+    report: dict
+
+    def __repr__(self) -> str:
+        r = self.report
+        return f"CellMesh({r.get('kind')}, {r.get('elements')} elements, Vf {r.get('vf', float('nan')):.3f})"
+
+    def write(self, out, materials=None) -> Path:
+        """The volume mesh folder (README): volume.xdmf/.h5, .msh, .vtu, .inp, mesh_report.json; it
+        appears only when complete (collective)."""
+        from textile_fenicsx.files import staged_folder
+        from textile_fenicsx.volume_files import FILES, write_volume
+
+        with staged_folder(out, self.fields.mesh.comm, remove=FILES) as tmp:
+            write_volume(self.mesh, self.fields, tmp, materials)
+        return Path(out)
+
+
+def mesh_cell(textile: Textile, options: VolumeOptions = VolumeOptions(),
+              comm: MPI.Comm = MPI.COMM_WORLD) -> CellMesh:
+    """The textile's periodic volume mesh, in DOLFINx too (collective)."""
+    from textile_fenicsx.volume_files import report_document, to_dolfinx
+
+    vm = volume_mesh(textile, options, comm)
+    fields = to_dolfinx(vm, comm)
+    report = comm.bcast(report_document(vm) if comm.rank == 0 else None, root=0)
+    return CellMesh(vm, fields, report)

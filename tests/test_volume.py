@@ -1,0 +1,164 @@
+"""Volume meshes of the unit cell: the voxel mesher, the files and their reading back (1 and 2 ranks)."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from textile_fenicsx.config import textile_from_dict
+from textile_fenicsx.errors import FormatError, TextileError
+from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+from textile_fenicsx.volumes import VolumeOptions, mesh_cell, volume_mesh
+
+
+def cross_ply(gap: float = 0.1, fibres: dict | None = None):
+    """Two layers of straight elliptical yarns (1.6 x 0.3 mm, 2 mm apart) crossing at 90 degrees, `gap`
+    apart through the thickness: no overlap, and each yarn's volume in the cell is pi/4 1.6 0.3 x 4 mm."""
+    h = 0.15 + gap / 2
+    yarns = [{"name": f"warp {k}", "nodes": [[0, y, h], [4, y, h]], "interpolation": "linear",
+              "repeats": [[4, 0, 0], [0, 4, 0]], "section": {"type": "ellipse", "width": 1.6, "height": 0.3}}
+             for k, y in enumerate((1.0, 3.0))]
+    yarns += [{"name": f"weft {k}", "nodes": [[x, 0, -h], [x, 4, -h]], "interpolation": "linear",
+               "repeats": [[4, 0, 0], [0, 4, 0]], "section": {"type": "ellipse", "width": 1.6, "height": 0.3}}
+              for k, x in enumerate((1.0, 3.0))]
+    d = {"name": "cross_ply", "cell": {"lx": 4, "ly": 4}, "yarns": yarns,
+         "resolution": {"spacing": 0.1, "section_points": 256}}
+    if fibres:
+        d["fibres"] = fibres
+    return textile_from_dict(d)
+
+
+def test_voxel_yarn_volume_converges():
+    # the staircase's error oscillates with the grid's phase against the yarns (+6.1 % at 0.1 mm,
+    # -1.3 % at 0.04) and shrinks: 3.4 % at 0.05 mm, 0.8 % at 0.025 mm
+    t = cross_ply()
+    exact = np.pi / 4 * 1.6 * 0.3 * 4
+    errors = []
+    for size in (0.05, 0.025):
+        vm = volume_mesh(t, VolumeOptions("voxel", size, yarn_vf=0.6), MPI.COMM_SELF)
+        errors.append(max(abs(y["meshed_volume"] / exact - 1) for y in vm.report["yarns"]))
+        # each yarn's model volume (rays) is the ellipse's to the sampling error
+        assert all(y["model_volume"] == pytest.approx(exact, rel=2e-3) for y in vm.report["yarns"])
+    assert errors[1] < 0.03 and errors[1] < errors[0] / 2
+
+
+@pytest.mark.mpi
+def test_voxel_mesh_is_periodic_with_its_fields(comm):
+    t = cross_ply()
+    exact = np.pi / 4 * 1.6 * 0.3 * 4
+    cell = mesh_cell(t, VolumeOptions("voxel", 0.1, yarn_vf=0.6), comm)
+    r = cell.report
+    assert r["periodicity"]["periodic"] and r["overlap"]["voxels"] == 0
+    assert r["box"]["lo"][2] == pytest.approx(-0.35, abs=2e-3) and r["box"]["hi"][2] == pytest.approx(0.35, abs=2e-3)
+    assert r["vf"] == pytest.approx(0.6 * 4 * exact / (16 * 0.7), rel=0.07)  # the voxels' volume: +6.1 %
+    if comm.rank == 0:
+        vm = cell.mesh
+        warp = np.isin(vm.phase, (1, 2))
+        weft = np.isin(vm.phase, (3, 4))
+        assert np.allclose(np.abs(vm.direction[warp]), [1, 0, 0]) and np.allclose(np.abs(vm.direction[weft]), [0, 1, 0])
+        assert np.all(vm.yarn_vf[vm.phase > 0] == 0.6) and np.all(vm.yarn_vf[vm.phase == 0] == 0)
+        assert np.all(np.linalg.norm(vm.direction[vm.phase == 0], axis=1) == 0)
+
+
+@pytest.mark.mpi
+def test_volume_files_read_back_with_tags_and_fields(comm, mpi_tmp_path):
+    import dolfinx
+    import ufl
+
+    from textile_fenicsx.volume_files import read_volume
+
+    t = cross_ply(fibres={"linear_density": 600, "density": 2.55})
+    cell = mesh_cell(t, VolumeOptions("voxel", 0.2), comm)
+    cell.write(mpi_tmp_path / "vol")
+    back = read_volume(mpi_tmp_path / "vol" / "volume.xdmf", comm)
+
+    def integrals(f):
+        dx = ufl.Measure("dx", domain=f.mesh, subdomain_data=f.phase)
+        one = [dolfinx.fem.form(1.0 * dx(p)) for p in range(5)]
+        a = dolfinx.fem.form(ufl.as_vector((1.0, 2.0, 3.0))[0] * abs(f.direction[0]) * dx
+                             + abs(f.direction[1]) * dx + f.yarn_vf * dx)
+        return [comm.allreduce(dolfinx.fem.assemble_scalar(x), op=MPI.SUM) for x in one + [a]]
+
+    assert np.allclose(integrals(back), integrals(cell.fields), rtol=1e-12)
+    if comm.rank == 0:
+        names = sorted(p.name for p in (mpi_tmp_path / "vol").iterdir())
+        assert names == ["mesh_report.json", "volume.h5", "volume.inp", "volume.msh", "volume.vtu", "volume.xdmf"]
+        import meshio
+
+        for name in ("volume.msh", "volume.vtu"):
+            m = meshio.read(mpi_tmp_path / "vol" / name)
+            assert len(m.cells[0].data) == cell.report["elements"]
+        inp = (mpi_tmp_path / "vol" / "volume.inp").read_text()
+        assert inp.count("*Elset") == 5 and "*Orientation, name=FIBRE_AXES" in inp
+        vf = 600 / 2550 / (np.pi / 4 * 1.6 * 0.3)  # the fibre data's intra-yarn fraction
+        report = json.loads((mpi_tmp_path / "vol" / "mesh_report.json").read_text())
+        cell_volume = np.prod(np.subtract(report["box"]["hi"], report["box"]["lo"]))
+        assert report["vf"] == pytest.approx(vf * sum(y["meshed_volume"] for y in report["yarns"]) / cell_volume,
+                                             rel=1e-5)  # the section's area from a 1024-point polygon
+
+
+@pytest.mark.mpi
+def test_a_file_without_tags_or_fields_is_refused(comm, mpi_tmp_path):
+    import dolfinx
+
+    from textile_fenicsx.volume_files import read_volume
+
+    msh = dolfinx.mesh.create_unit_cube(comm, 2, 2, 2)
+    with dolfinx.io.XDMFFile(comm, mpi_tmp_path / "bare.xdmf", "w") as f:
+        f.write_mesh(msh)
+    with pytest.raises(FormatError, match=r"bare.xdmf: no phase, direction, yarn_vf in this XDMF file"):
+        read_volume(mpi_tmp_path / "bare.xdmf", comm)
+
+
+def test_voxel_overlap_is_counted_and_given_to_the_deeper_yarn():
+    t = cross_ply(gap=-0.1)  # the layers overlap 0.1 mm deep where the yarns cross
+    vm = volume_mesh(t, VolumeOptions("voxel", 0.05, yarn_vf=0.6), MPI.COMM_SELF)
+    overlap = vm.report["overlap"]
+    lens = 4 * 0.1 * 1.6 * 1.6 * 0.6  # four crossings, 0.1 mm deep at most: the order of the lens volume
+    assert overlap["voxels"] > 0 and 0.1 * lens < overlap["volume"] < 2 * lens
+    assert {tuple(p["yarns"]) for p in overlap["pairs"]} == {("warp 0", "weft 0"), ("warp 0", "weft 1"),
+                                                             ("warp 1", "weft 0"), ("warp 1", "weft 1")}
+    # the deepest rule: above the crossing's mid-plane (z > 0) the warp (upper yarn) is deeper
+    centres = vm.points[vm.cells].mean(axis=1)
+    inside = t.inside(centres)
+    both = inside[:, :2].any(axis=1) & inside[:, 2:].any(axis=1)
+    assert both.sum() == overlap["voxels"]
+    # near a crossing's centre (within 0.1 mm in plan) the warp's bottom and the weft's top are at -+0.05 mm
+    # to 1.2 um: a centre above z = 0.001 lies deeper in the warp, one below -0.001 deeper in the weft
+    near = np.all(np.abs(np.mod(centres[:, :2], 2.0) - 1.0) < 0.1, axis=1) & both
+    assert np.all(np.isin(vm.phase[near & (centres[:, 2] > 0.001)], (1, 2)))
+    assert np.all(np.isin(vm.phase[near & (centres[:, 2] < -0.001)], (3, 4)))
+    assert np.sum(near & (centres[:, 2] > 0.001)) > 10
+
+
+def test_periodicity_check_finds_a_broken_node():
+    box = Box((0, 0, 0), (1, 1, 1))
+    g = np.linspace(0, 1, 3)
+    pts = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
+    assert periodic_mismatch(pts, box)["periodic"]
+    bad = pts.copy()
+    bad[np.flatnonzero(bad[:, 0] == 1)[4], 1] += 1e-6  # a node on x+ moved off its image
+    report = periodic_mismatch(bad, box)
+    assert not report["periodic"] and report["x"]["unmatched"] == 2 and report["y"]["unmatched"] == 0
+
+
+@pytest.mark.serial
+def test_volume_mesh_command_errors_name_the_culprit(tmp_path):
+    def run(*args):
+        return subprocess.run(["textile-fenicsx", "volume-mesh", *args], capture_output=True, text=True, timeout=120)
+
+    out = tmp_path / "vol"
+    r = run("reference/models/plain.tg3", "--kind", "voxel", "--size", "0.0011", "--out", str(out))
+    assert r.returncode == 2 and "would give" in r.stderr and "voxels, more than the limit" in r.stderr
+    r = run("reference/models/plain.tg3", "--kind", "voxel", "--yarn-vf", "0.95", "--out", str(out))
+    assert r.returncode == 2 and "--yarn-vf" in r.stderr and "0.9069" in r.stderr
+    assert not out.exists()
+
+
+def test_options_are_checked():
+    with pytest.raises(TextileError, match="kind must be one of voxel, tet"):
+        VolumeOptions("hex")
+    with pytest.raises(TextileError, match="volume mesh size must be > 0"):
+        VolumeOptions("voxel", -1)

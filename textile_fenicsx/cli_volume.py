@@ -1,0 +1,86 @@
+"""The commands of the volume stage: `volume-mesh` (and `solve --volume-mesh`), `homogenise`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from contextlib import nullcontext
+from pathlib import Path
+
+from textile_fenicsx.errors import TextileError
+from textile_fenicsx.files import claim_output
+
+VOLUME_DESCRIPTION = (
+    "Mesh the periodic cell of a model (a corrected one, or TexGen's idealised one) as volume elements, "
+    "each matrix or exactly one yarn. voxel: N x N x M hexahedra, the phase read at each centre (a centre "
+    "inside two yarns is counted and reported in mesh_report.json, and goes to the yarn it lies deepest "
+    "in). tet: conforming tetrahedra (gmsh OpenCASCADE); a model whose yarns overlap is refused. The cell "
+    "is the model's in plan and the yarns' own thickness (or --z-range). Writes DIR/volume.xdmf (+.h5: "
+    "mesh, cell tags 'phase' = 0 matrix, 1 + i yarn i, DG0 fields 'direction' and 'yarn_vf'), "
+    "DIR/volume.msh, DIR/volume.vtu, DIR/volume.inp (Abaqus: element sets, *Orientation per element) and "
+    "DIR/mesh_report.json; the folder appears only when complete.")
+
+
+def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """The volume mesh's options (on `volume-mesh`, and on `solve` with the prefix 'volume-')."""
+    p.add_argument(f"--{prefix}size", type=float, default=0.2, metavar="H",
+                   help="element size [mm] (default 0.2)")
+    p.add_argument("--yarn-vf", type=float, metavar="V",
+                   help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
+                   "(default: from the fibre data; 0.65 with a warning where there is none)")
+    p.add_argument("--z-range", type=float, nargs=2, metavar=("ZMIN", "ZMAX"),
+                   help="the cell through the thickness [mm] (default: the yarns' own extent)")
+
+
+def add_commands(commands) -> None:
+    """Add `volume-mesh` to the command line."""
+    p = commands.add_parser("volume-mesh", help="mesh a model's periodic cell with volume elements",
+                            description=VOLUME_DESCRIPTION)
+    p.add_argument("model", help="model file: .tg3, .toml or .json")
+    p.add_argument("--kind", choices=["voxel", "tet"], required=True, help="voxel hexahedra or conforming tetrahedra")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument("--force", action="store_true",
+                   help="allow --out to be the model's own folder (the model file itself is never replaced)")
+    add_volume_options(p)
+    p.add_argument("--memory-limit", type=float, metavar="GB",
+                   help="refuse sizes whose mesh would need more memory than this (default: what is available)")
+    p.set_defaults(run=volume_mesh_command)
+
+
+def options_from(args, kind: str, size: float):
+    """VolumeOptions from the parsed arguments (checked before any work)."""
+    from textile_fenicsx.volumes import VolumeOptions
+
+    return VolumeOptions(kind=kind, size=size, yarn_vf=args.yarn_vf,
+                         z_range=tuple(args.z_range) if args.z_range else None,
+                         memory_limit=getattr(args, "memory_limit", None))
+
+
+def summary_line(report: dict) -> str:
+    """One line on a volume mesh: kind, elements, Vf, the overlap and the worst yarn volume."""
+    errors = [abs(y["relative_error"]) for y in report["yarns"] if y["relative_error"] is not None]
+    overlap = report.get("overlap", {})
+    text = (f"{report['kind']} mesh: {report['elements']} elements, Vf {report['vf']:.3f}, yarn volumes within "
+            f"{100 * max(errors, default=0):.2f} % of the model's")
+    if overlap.get("voxels"):
+        text += f", {overlap['voxels']} voxels ({overlap['volume']:.3g} mm^3) in two yarns"
+    return text
+
+
+def volume_mesh_command(args) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.config import load_model
+    from textile_fenicsx.volume_files import FILES
+    from textile_fenicsx.volumes import mesh_cell
+
+    comm = MPI.COMM_WORLD
+    options = options_from(args, args.kind, args.size)
+    textile = load_model(args.model)
+    with claim_output(args.out, inputs=[args.model], names=FILES, force=args.force, comm=comm):
+        cell = mesh_cell(textile, options, comm)
+        cell.write(args.out)
+    if comm.rank == 0:
+        print(summary_line(cell.report))
+        print(Path(args.out) / "volume.xdmf")
+    return 0
