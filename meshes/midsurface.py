@@ -21,7 +21,8 @@ from scipy.spatial import cKDTree
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError
-from textile_fenicsx.meshes.projected import GHOST, ProjectedMesh
+from textile_fenicsx.meshes.conversion import GHOST
+from textile_fenicsx.meshes.projected import ProjectedMesh
 
 log = logging.getLogger(__name__)
 
@@ -358,7 +359,7 @@ def mesh_statistics(ms: MidSurfaces) -> dict:
     """JSON-ready counts and checks of a projected mesh and its mid-surfaces (collective)."""
     import ufl
 
-    from textile_fenicsx.meshes.projected import footprint_area
+    from textile_fenicsx.meshes.footprints import footprint_area
     from textile_fenicsx.metrics import measure
 
     proj = ms.projected

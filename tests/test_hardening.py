@@ -376,10 +376,10 @@ def test_the_memory_guard_covers_what_the_bench_measures(tmp_path, factors):
     # (BYTES_PER_DOF_OUT_OF_CORE with MUMPS' factors on disk, --out-of-core).
     # The bench's own record of a small coupon (84 000 dofs, its own process): the guard's need
     # covers the peak resident set, and is not so pessimistic (4x) that it refuses runs that fit.
-    from textile_fenicsx.meshes import projected
+    from textile_fenicsx import memory
 
-    BYTES_PER_RANK = projected.BYTES_PER_RANK
-    BYTES_PER_DOF = projected.BYTES_PER_DOF if factors == "in memory" else projected.BYTES_PER_DOF_OUT_OF_CORE
+    BYTES_PER_RANK = memory.BYTES_PER_RANK
+    BYTES_PER_DOF = memory.BYTES_PER_DOF if factors == "in memory" else memory.BYTES_PER_DOF_OUT_OF_CORE
     name = "satin4 2x2 0.25" + ("" if factors == "in memory" else " out of core")
     proc = subprocess.run([sys.executable, str(REPO / "bench" / "bench.py"), "--case", name], capture_output=True,
                           text=True, timeout=600, env={**os.environ, "TEXTILE_FENICSX_BENCH_TMP": str(tmp_path)})
@@ -476,7 +476,7 @@ def test_factors_on_disk_let_the_guard_take_a_larger_coupon(tmp_path):
     # --out-of-core: the guard assumes BYTES_PER_DOF_OUT_OF_CORE per dof. A memory limit between
     # the two needs of a 2 x 2 crowfoot satin coupon: refused with the factors in memory, solved
     # with them on disk
-    from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
+    from textile_fenicsx.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
 
     dofs = estimated_dofs(build("crowfoot_satin"), 1.0, (2, 2))
     limit = (dofs * (BYTES_PER_DOF + BYTES_PER_DOF_OUT_OF_CORE) / 2 + BYTES_PER_RANK) / 1e9

@@ -16,7 +16,8 @@ from textile_fenicsx.correct import CorrectionOptions, corrected_textile
 from textile_fenicsx.legs import STEEP, leg_loads, split_steep
 from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
+from textile_fenicsx.memory import release_freed_memory
+from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
