@@ -43,6 +43,10 @@ class MidSurface:
     d: dolfinx.fem.Function          # in-plane unit fibre direction, DG0 vector
     cell_kind: dolfinx.mesh.MeshTags  # 1: cell of the unit cell, 2: ghost-strip copy
 
+    def __repr__(self) -> str:
+        return (f"<MidSurface of yarn {self.yarn}: {self.V.dofmap.index_map.size_global} P2 dofs, "
+                f"{self.mesh.topology.index_map(2).size_global} cells>")
+
     @property
     def dx(self):
         """Measure over the yarn's cells in the unit cell (not the ghost strip)."""
@@ -62,6 +66,11 @@ class MidSurfaces:
     contact_dofs: dict = field(default_factory=dict)  # (upper, lower) -> (n, 2) submesh dof pairs
     contact_margin: dict = field(default_factory=dict)  # (upper, lower) -> (n,) gap a node keeps [mm]
     periodic: list = field(default_factory=list)  # per yarn: (n, 2) global parent dofs (image, source)
+
+    def __repr__(self) -> str:
+        name = self.projected.textile.name if self.projected.textile is not None else "a plate"
+        dofs = sum(y.V.dofmap.index_map.size_global for y in self.yarns)
+        return f"<MidSurfaces of {name!r}: {len(self.yarns)} yarns, {dofs} dofs, {len(self.contact)} contact pairs>"
 
 
 def _parent_space(msh):

@@ -112,6 +112,11 @@ class ProjectedMesh:
     stats: dict = field(default_factory=dict)
     cell: object = None
 
+    def __repr__(self) -> str:
+        name = self.textile.name if self.textile is not None else "a plate"
+        return (f"<ProjectedMesh of {name!r}: {self.stats.get('cells')} cells, {self.stats.get('nodes')} nodes, "
+                f"{len(self.coverage)} covering sets, seed {self.options.seed:g} mm>")
+
     def yarn_cells(self, i: int, strip: bool = True) -> np.ndarray:
         """Local cells (owned and ghost) covered by yarn i, with its ghost-strip copies if `strip`."""
         tags = [t for t, s in self.coverage.items() if i in s]

@@ -122,8 +122,9 @@ def _solve_command(subparsers: Subparsers) -> None:
         "solve", help="correct a model: mesh, then minimise bending + tension + contact energy",
         description="Run the whole path on INPUT (a .tg3, our .toml/.json, or a named weave: plain, twill, "
         "satin, crowfoot_satin, orthogonal): projected mesh, mid-surfaces, then the contact iteration, "
-        "printing one line per iteration (active contact dofs, changes, max penetration, residual, time). "
-        "Prints a JSON summary (dofs, iterations, max penetration, max |w|, seconds per stage). With --out DIR "
+        "logging one line per iteration on stderr (max penetration, move, step, time). Prints a summary line "
+        "(the check's verdict, interpenetration and thickness before -> after, dofs, steps, time), and with "
+        "--json the numbers as JSON (metrics.json with --out, else the run's summary). With --out DIR "
         "writes DIR/corrected.tg3, DIR/corrected.json, DIR/initial.json, DIR/metrics.json (before/after), "
         "DIR/fields/yarn_I.vtu (w, z0, t, z, gap_below, contact at the mid-surface's vertices), "
         "DIR/surfaces_{before,after}.{vtu,stl} and figures DIR/view_{before,after}.png, DIR/cross_sections.png; "
@@ -136,6 +137,8 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.add_argument("input", help="model file or named weave")
     p.add_argument("--out", metavar="DIR", help="write the corrected model, metrics, fields, surfaces, figures")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--json", action="store_true",
+                   help="also print the numbers as JSON on stdout (metrics.json with --out, else the run's summary)")
     p.add_argument("--force", action="store_true",
                    help="allow --out to be the input's own folder (the input file itself is never replaced)")
     _mesh_arguments(p)

@@ -196,11 +196,15 @@ def solve(args) -> int:
             raise SolverError(f"{result.solution.reason}{hint}{where}")
         if args.out:  # the check's metrics are measured while the figures are drawn
             out = result.write(args.out, figures=not args.no_figures, painter=painter)
-            if comm.rank == 0:
-                print((out / "metrics.json").read_text())
         verdict = result.verdict
-        if not args.out and comm.rank == 0:
-            print(json.dumps({**result.summary(), "verdict": verdict}, indent=1))
+        line, summary = result.summary_line(), result.summary()
+        if comm.rank == 0:
+            print(line)
+            if args.out:
+                print(f"written to {args.out}/ (metrics.json: every number; README, The output folder)")
+            if args.json:
+                print((out / "metrics.json").read_text() if args.out else json.dumps({**summary, "verdict": verdict},
+                                                                                    indent=1))
     if not verdict["passed"]:
         kept = f"; the outputs are kept in {args.out}/ (rejected.tg3, FAILED)" if args.out else ""
         raise SolverError("the corrected model fails its check: "

@@ -79,6 +79,28 @@ class Run:
     mould: Mould | None = None  # the mould's platens, where it closed on the fabric
     _metrics: dict | None = field(default=None, repr=False)
 
+    def __repr__(self) -> str:
+        sol = self.solution
+        state = f"converged in {sol.iterations} Newton steps" if sol.converged else f"not converged ({sol.reason})"
+        dofs = sum(y.V.dofmap.index_map.size_global for y in self.midsurfaces.yarns)
+        check = "check not measured yet" if self._metrics is None else \
+            ("check passed" if self.verdict["passed"] else "check failed")
+        return (f"<Run {self.textile.name!r}: {state}, {dofs} dofs, seed {self.settings.mesh.seed:g} mm, "
+                f"{self.times.get('total', 0.0):.1f} s; {check}>")
+
+    def summary_line(self) -> str:
+        """One line for people: the check's verdict, interpenetration and thickness before -> after,
+        the size and the time of the run (collective: measures the metrics if not yet done)."""
+        m = self.metrics
+        before, after = m["before"], m["after"] or {}
+        check = "check passed" if m["verdict"]["passed"] else "check FAILED"
+        volume = (f"interpenetration {before['interpenetration']['volume']:.3g} -> "
+                  f"{after['interpenetration']['volume']:.3g} mm^3") if after else "no corrected model"
+        thickness = f", thickness {before['thickness']:.3f} -> {after['thickness']:.3f} mm" if after else ""
+        s = self.summary()
+        return (f"{self.textile.name}: {check}; {volume}{thickness}; {s['dofs']} dofs, {s['iterations']} Newton "
+                f"steps, {self.times.get('total', 0.0):.1f} s")
+
     @property
     def comm(self) -> MPI.Comm:
         return self.midsurfaces.V.mesh.comm

@@ -160,6 +160,15 @@ class Textile:
                                f"cells ({c.lx:g} x {c.ly:g} mm, no rise); close the path or mark the yarn "
                                "non-periodic")
 
+    def __repr__(self) -> str:
+        """One line: name, cell, yarns, master nodes, kinds of section (as DOLFINx and pyvista objects)."""
+        kinds = sorted({type(x).__name__ for y in self.yarns for x in y.section.sections()})
+        extra = "" if self.cell.periodic else ", free edges"
+        if self.tiling is not None:
+            extra += f", a {self.tiling.nx} x {self.tiling.ny} coupon of {self.tiling.unit.name!r}"
+        return (f"<Textile {self.name!r}: cell {self.cell.lx:g} x {self.cell.ly:g} mm{extra}, {len(self.yarns)} yarns "
+                f"({sum(len(y.nodes) for y in self.yarns)} master nodes), sections {', '.join(kinds)}>")
+
     # --- geometric queries (queries.py) ----------------------------------------------------------
     def triangles(self, i: int, region: tuple | None = None) -> np.ndarray:
         """Triangles (T, 3, 3) of yarn i's surface, periodic copies included, that vertical rays

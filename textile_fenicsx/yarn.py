@@ -94,6 +94,18 @@ class Yarn:
         self._spline = None
         self._node_tangents = None
 
+    def __repr__(self) -> str:
+        """One line: name, master nodes, interpolation, period, sections."""
+        shapes = sorted({type(x).__name__ for x in self.section.sections()})
+        if isinstance(self.section, ConstantSection):
+            x = self.section.section
+            sections = f"{type(x).__name__} {x.width:g} x {x.height:g} mm"
+        else:
+            sections = f"{type(self.section).__name__} ({', '.join(shapes)})"
+        p = self.period
+        path = f"period ({p[0]:g}, {p[1]:g}, {p[2]:g}) mm" if self.periodic else "not periodic"
+        return f"<Yarn {self.name!r}: {len(self.nodes)} master nodes, {self.interpolation}, {path}, {sections}>"
+
     # --- centreline -------------------------------------------------------------------------
     @property
     def period(self) -> np.ndarray:

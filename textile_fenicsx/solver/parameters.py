@@ -124,3 +124,8 @@ class Solution:
     reason: str
     times: dict = field(default_factory=dict)
     unknowns: object = None  # this rank's part of the unknowns vector (to start a related solve from)
+
+    def __repr__(self) -> str:
+        state = "converged" if self.converged else "not converged"
+        return (f"<Solution: {state} in {self.iterations} Newton steps, {len(self.w)} yarns, "
+                f"max penetration {self.max_penetration:.3g} mm>")
