@@ -6,18 +6,23 @@ that, a ghost strip (copies of the cells along the left and bottom sides, beyond
 sides) gives the periodic seam facets their second neighbour (DESIGN.md sections 6, 11).
 """
 
+from collections.abc import Callable
+
 import numpy as np
+from mpi4py import MPI
 from scipy.spatial import cKDTree
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.textile import Cell
 
 __all__ = ["GHOST", "ghost_strip", "to_dolfinx"]
 
 # Cell tags of the ghost strip: a copy of region k's cells beyond the right/top sides has tag k + GHOST.
 GHOST = 10_000_000
 
-def to_dolfinx(comm, arrays, partitioner):
+def to_dolfinx(comm: MPI.Comm, arrays: tuple | list | None,
+               partitioner: Callable) -> tuple[dolfinx.mesh.Mesh, dolfinx.mesh.MeshTags]:
     """A distributed dolfinx mesh and its cell tags from rank 0's (x, cells, tags)."""
     import basix.ufl
     import ufl
@@ -26,6 +31,7 @@ def to_dolfinx(comm, arrays, partitioner):
 
     domain = ufl.Mesh(basix.ufl.element("Lagrange", "triangle", 1, shape=(2,)))
     if comm.rank == 0:
+        assert arrays is not None  # rank 0 made them
         x, cells, values = arrays
     else:
         x, cells, values = np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
@@ -38,7 +44,8 @@ def to_dolfinx(comm, arrays, partitioner):
     return msh, tags
 
 
-def ghost_strip(cell, x: np.ndarray, cells: np.ndarray, tags: np.ndarray):
+def ghost_strip(cell: Cell, x: np.ndarray, cells: np.ndarray,
+                tags: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The mesh arrays with the ghost strip added (DESIGN.md sections 6 and 11): the cells with an
     edge on the left (bottom) side are copied, shifted by the cell's width (height), beyond the
     right (top) side; a copy reuses the mesh's own nodes on the right (top) side, so the seam facets

@@ -14,7 +14,8 @@ from textile_fenicsx.textile import Textile
 __all__ = ["footprint_area", "footprint_outlines"]
 
 
-def footprint_outlines(textile: Textile, i: int, spacing: float, pad: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
+def footprint_outlines(textile: Textile, i: int, spacing: float,
+                       pad: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
     """Outlines of yarn i seen along z: one (right, left) pair of side chains ((n, 2) each, in the
     yarn's direction) per lateral copy that reaches the cell grown by `pad`, long enough to cover
     the cell along the yarn (several periods chained). The closed outline is right + reversed left."""
@@ -36,14 +37,14 @@ def footprint_outlines(textile: Textile, i: int, spacing: float, pad: float = 0.
     if not yarn.periodic:  # a piece (free edges, or a crown of a cut yarn): its copies by the repeats
         return [(right + t[:2], left + t[:2]) for t in translations(textile, yarn, np.r_[lo, 0], np.r_[hi, 0], region)]
     P = yarn.period[:2]
-    outlines = {}
+    outlines: dict[tuple, tuple[np.ndarray, list[int]]] = {}
     for t in translations(textile, yarn, np.r_[lo, 0], np.r_[hi, 0], region):
         k = int(np.round(t[:2] @ P / (P @ P)))
         b = t[:2] - k * P
         outlines.setdefault(tuple(np.round(b, 9)), (b, []))[1].append(k)
     result = []
-    for b, ks in outlines.values():
-        ks = range(min(ks) - 1, max(ks) + 2)
+    for b, found in outlines.values():
+        ks = range(min(found) - 1, max(found) + 2)
         R = np.concatenate([right[(1 if n else 0):] + k * P + b for n, k in enumerate(ks)])
         L = np.concatenate([left[(1 if n else 0):] + k * P + b for n, k in enumerate(ks)])
         result.append((R, L))

@@ -10,11 +10,12 @@ vertex wherever an outline meets a side, on both sides of each pair (`side_marks
 import numpy as np
 
 from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.textile import Cell
 
 __all__ = ["box_with_marks", "periodic_sides", "side_marks", "snap_to_sides"]
 
 
-def snap_to_sides(points: np.ndarray, cell, tol: float) -> np.ndarray:
+def snap_to_sides(points: np.ndarray, cell: Cell, tol: float) -> np.ndarray:
     """Footprint outline points within tol of a cell side line (or of one of its periodic copies)
     put onto it. gmsh's boolean tolerance (tol) would otherwise merge such a point onto the side
     on one side of the cell and leave its periodic copy beside the other (a binder's edge 0.0125 mm
@@ -30,14 +31,14 @@ def snap_to_sides(points: np.ndarray, cell, tol: float) -> np.ndarray:
     return out
 
 
-def side_marks(chains: list[np.ndarray], cell, tol: float) -> tuple[np.ndarray, np.ndarray]:
+def side_marks(chains: list[np.ndarray], cell: Cell, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Where footprint outlines (polylines) meet the cell's sides, as coordinates along them: the
     y of every meeting with x = x0 + k lx and the x of every meeting with y = y0 + k ly, each
     wrapped into the cell. Both sides of a pair get a vertex at each, so that their curves pair
     one to one (gmsh's periodic meshing needs that, and a yarn edge that ends on one side need not
     end on the other)."""
     x0, x1, y0, y1 = cell.bounds
-    marks = [[], []]
+    marks: list[list[np.ndarray]] = [[], []]
     for chain in chains:
         for axis, lo, length in ((0, x0, cell.lx), (1, y0, cell.ly)):
             other = 1 - axis
@@ -65,7 +66,7 @@ def side_marks(chains: list[np.ndarray], cell, tol: float) -> tuple[np.ndarray, 
     return out[0], out[1]
 
 
-def box_with_marks(cell, on_x: np.ndarray, on_y: np.ndarray) -> int:
+def box_with_marks(cell: Cell, on_x: np.ndarray, on_y: np.ndarray) -> int:
     """The cell as a polygon surface with vertices at the marks, on both sides of each pair."""
     import gmsh
 
@@ -78,7 +79,7 @@ def box_with_marks(cell, on_x: np.ndarray, on_y: np.ndarray) -> int:
     return occ.addPlaneSurface([occ.addCurveLoop(lines)])
 
 
-def periodic_sides(cell, sliver: float) -> None:
+def periodic_sides(cell: Cell, sliver: float) -> None:
     """Periodic sides: each right (top) boundary curve is a translated copy of a left (bottom) one;
     pair them by their centres of mass and make gmsh mesh them alike."""
     import gmsh

@@ -24,7 +24,7 @@ from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, to_dolfinx
 from textile_fenicsx.meshes.footprints import footprint_area, footprint_outlines
 from textile_fenicsx.meshes.regions import gmsh_session, region_mesh
 from textile_fenicsx.meshes.tiling import tile_arrays
-from textile_fenicsx.textile import Textile
+from textile_fenicsx.textile import Cell, Textile
 
 __all__ = ["GHOST", "MeshOptions", "ProjectedMesh", "check_memory", "check_slopes", "estimated_dofs", "plate_mesh",
            "projected_mesh"]
@@ -50,7 +50,7 @@ class MeshOptions:
     allow_steep: bool = False
     memory_limit: float | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not (np.isfinite(self.seed) and self.seed > 0):
             raise TextileError(f"mesh seed must be a positive size in mm, got {self.seed!r}")
         limits.check_length("mesh seed", self.seed)
@@ -107,10 +107,10 @@ class ProjectedMesh:
     mesh: dolfinx.mesh.Mesh
     cell_tags: dolfinx.mesh.MeshTags
     coverage: dict
-    textile: Textile
+    textile: Textile | None  # None for plate_mesh's verification plates
     options: MeshOptions
     stats: dict = field(default_factory=dict)
-    cell: object = None
+    cell: Cell | None = None
 
     def __repr__(self) -> str:
         name = self.textile.name if self.textile is not None else "a plate"
@@ -157,7 +157,7 @@ def projected_mesh(textile: Textile, options: MeshOptions = MeshOptions(),
     return _mesh(textile, textile.cell, options, comm, warnings)
 
 
-def plate_mesh(cell, seed: float, comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
+def plate_mesh(cell: Cell, seed: float, comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedMesh:
     """The periodic cell alone, meshed like a projected mesh (ghost strip included), as if one
     plate (index 0) covered it: for verification problems."""
     pm = _mesh(None, cell, MeshOptions(seed), comm, [])
@@ -165,7 +165,8 @@ def plate_mesh(cell, seed: float, comm: MPI.Comm = MPI.COMM_WORLD) -> ProjectedM
     return pm
 
 
-def _mesh(textile, cell, options, comm, warnings) -> ProjectedMesh:
+def _mesh(textile: Textile | None, cell: Cell, options: MeshOptions, comm: MPI.Comm,
+          warnings: list[str]) -> ProjectedMesh:
     start = time.perf_counter()
     name = textile.name if textile is not None else "plate"
     if options.seed > min(cell.lx, cell.ly):
@@ -195,7 +196,8 @@ def _mesh(textile, cell, options, comm, warnings) -> ProjectedMesh:
     return ProjectedMesh(msh, cell_tags, coverage, textile, options, stats, cell)
 
 
-def _mesh_on_root(textile, cell, options, name):
+def _mesh_on_root(textile: Textile | None, cell: Cell, options: MeshOptions,
+                  name: str) -> tuple[tuple | list, dict, dict] | Exception:
     """Rank 0's part: the gmsh model (of a coupon's unit cell, then tiled) and the ghost strip, as
     (arrays, coverage, stats), or the exception that stopped it (to be reported on every rank)."""
     try:
@@ -208,8 +210,10 @@ def _mesh_on_root(textile, cell, options, name):
         arrays, coverage, stats = region_mesh(source.cell if source is not None else cell, outlines, options.seed,
                                               sliver, f"projected-{name}")
         if tiling is not None:
-            *arrays, coverage = tile_arrays(*arrays, coverage, textile)
-            stats.update(nodes=int(len(arrays[0])), triangles=int(len(arrays[1])), regions=len(coverage),
+            assert textile is not None  # the coupon
+            x, cells, tags, coverage = tile_arrays(*arrays, coverage, textile)
+            arrays = (x, cells, tags)
+            stats.update(nodes=int(len(x)), triangles=int(len(cells)), regions=len(coverage),
                          tiled=[tiling.nx, tiling.ny])
         if cell.periodic:
             arrays = ghost_strip(cell, *arrays)

@@ -14,6 +14,7 @@ import numpy as np
 
 from textile_fenicsx.errors import GeometryError
 from textile_fenicsx.meshes.periodic_sides import box_with_marks, periodic_sides, side_marks, snap_to_sides
+from textile_fenicsx.textile import Cell
 
 __all__ = ["GROWTH", "gmsh_session", "region_mesh"]
 
@@ -44,7 +45,7 @@ def gmsh_session(owner: bool) -> Iterator[None]:
             gmsh.finalize()
 
 
-def region_mesh(cell, outlines: list, seed: float, sliver: float,
+def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
                 name: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict, dict]:
     """Build and mesh the gmsh model `name` on this rank from the cell and each yarn's footprint
     outlines [(yarn, [(right, left), ...]), ...], element size `seed` [mm], edges closer than
@@ -77,7 +78,7 @@ def region_mesh(cell, outlines: list, seed: float, sliver: float,
                                       "regions": int(len(covering)), "sliver_tolerance_mm": sliver}
 
 
-def _covering_regions(cell, outlines: list, sliver: float) -> tuple[dict, dict]:
+def _covering_regions(cell: Cell, outlines: list, sliver: float) -> tuple[dict, dict]:
     """The cell fragmented by the footprints (synchronised), one physical group per covering set:
     ({surface tag: set of yarns over it}, {physical tag: sorted tuple of yarns})."""
     import gmsh
@@ -168,16 +169,16 @@ def _mesh_arrays() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     import gmsh
 
     tags, xyz, _ = gmsh.model.mesh.getNodes()
-    cells, values = [], []
+    pieces, values = [], []
     for _, k in gmsh.model.getPhysicalGroups(2):
         for ent in gmsh.model.getEntitiesForPhysicalGroup(2, k):
             types, _, nodes = gmsh.model.mesh.getElements(2, ent)
             for etype, enodes in zip(types, nodes):
                 if etype != 2:
                     raise GeometryError(f"gmsh produced elements of type {etype}, expected triangles")
-                cells.append(enodes.reshape(-1, 3))
-                values.append(np.full(len(cells[-1]), k, dtype=np.int32))
-    cells = np.vstack(cells).astype(np.int64)
+                pieces.append(enodes.reshape(-1, 3))
+                values.append(np.full(len(pieces[-1]), k, dtype=np.int32))
+    cells = np.vstack(pieces).astype(np.int64)
     used, compact = np.unique(cells, return_inverse=True)
     position = np.empty(int(tags.max()) + 1, dtype=np.int64)
     position[tags.astype(np.int64)] = np.arange(len(tags))

@@ -17,11 +17,13 @@ from textile_fenicsx.textile import Textile
 __all__ = ["tile_arrays"]
 
 
-def tile_arrays(x: np.ndarray, cells: np.ndarray, tags: np.ndarray, coverage: dict, coupon: Textile):
+def tile_arrays(x: np.ndarray, cells: np.ndarray, tags: np.ndarray, coverage: dict,
+                coupon: Textile) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The unit cell's mesh arrays repeated over a coupon made by `coupon.tile`: coincident nodes
     on the repeats' common sides merged, each cell's unit-cell yarns replaced by the coupon's
     copies of them whose centrelines are nearest. Returns the coupon's arrays and coverage."""
     tiling = coupon.tiling
+    assert tiling is not None  # a coupon made by coupon.tile
     unit = tiling.unit.cell
     shifts = [(i * unit.lx, j * unit.ly) for i in range(tiling.nx) for j in range(tiling.ny)]
     X = np.vstack([x + s for s in shifts])
@@ -36,10 +38,10 @@ def tile_arrays(x: np.ndarray, cells: np.ndarray, tags: np.ndarray, coverage: di
     X, C = X[first], label[C]
     # unit yarn k over a cell -> the copy of k nearest to the cell's centre
     centre = X[C].mean(axis=1)
-    copies = {}
+    copies: dict[int, list[int]] = {}
     for i, k in enumerate(tiling.source):
         copies.setdefault(k, []).append(i)
-    covering = [[] for _ in range(len(C))]
+    covering: list[list[int]] = [[] for _ in range(len(C))]
     for k, candidates in copies.items():
         over = np.flatnonzero(np.isin(T, [t for t, yarns in coverage.items() if k in yarns]))
         if len(over) == 0:

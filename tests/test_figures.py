@@ -2,6 +2,8 @@
 a scalar bar, checked on the pyvista Plotter or matplotlib Figure before it is drawn; and the
 one-line reprs of the objects a user holds."""
 
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 
@@ -11,11 +13,11 @@ from textile_fenicsx.outputs import cut_lines
 from textile_fenicsx.weaves import build
 
 
-def axis_rulers(plotter) -> list[str]:
+def axis_rulers(view) -> list[str]:
     """Titles of the 2D axes (rulers) among the plotter's actors."""
     import vtk
 
-    actors = plotter.renderer.GetActors2D()
+    actors = view.renderer.GetActors2D()
     actors.InitTraversal()
     titles = []
     for _ in range(actors.GetNumberOfItems()):
@@ -25,38 +27,41 @@ def axis_rulers(plotter) -> list[str]:
     return titles
 
 
-def assert_mm_axes(plotter, z_title: str) -> None:
-    cube = plotter.renderer.cube_axes_actor
+@contextmanager
+def plotter(make, *args, **kwargs):
+    """The Plotter a plotting function makes (off screen), closed after the block."""
+    with plotting.offscreen():
+        made = make(*args, **kwargs)
+        try:
+            yield made
+        finally:
+            made.close()
+
+
+def assert_mm_axes(view, z_title: str) -> None:
+    cube = view.renderer.cube_axes_actor
     assert cube is not None, "no bounds axes"
     assert (cube.GetXTitle(), cube.GetYTitle()) == ("x [mm]", "y [mm]")
-    assert any(t.startswith(z_title) for t in axis_rulers(plotter)), axis_rulers(plotter)
+    assert any(t.startswith(z_title) for t in axis_rulers(view)), axis_rulers(view)
 
 
 @pytest.mark.serial
 def test_the_3d_view_has_axes_in_mm_and_names_the_yarns():
     textile = build("plain")
-    with plotting.offscreen():
-        plotter = plotting.textile_plotter(textile, None, "plain")
-        try:
-            assert_mm_axes(plotter, "z [mm]")
-            legend = plotter.legend
-            assert legend is not None and legend.GetNumberOfEntries() == len(textile.yarns)
-            assert [legend.GetEntryString(i) for i in range(len(textile.yarns))] == [y.name for y in textile.yarns]
-        finally:
-            plotter.close()
+    with plotter(plotting.textile_plotter, textile, None, "plain") as view:
+        assert_mm_axes(view, "z [mm]")
+        legend = view.legend
+        assert legend is not None and legend.GetNumberOfEntries() == len(textile.yarns)
+        assert [legend.GetEntryString(i) for i in range(len(textile.yarns))] == [y.name for y in textile.yarns]
 
 
 @pytest.mark.serial
 def test_a_coupon_with_many_yarns_gets_a_scalar_bar_instead():
     coupon = tile(build("plain"), 6, 6)  # 24 x 2 yarns: past the legend's limit
     assert len(coupon.yarns) > plotting.MAX_LEGEND
-    with plotting.offscreen():
-        plotter = plotting.textile_plotter(coupon, None)
-        try:
-            assert "yarn index" in plotter.scalar_bars
-            assert_mm_axes(plotter, "z [mm]")
-        finally:
-            plotter.close()
+    with plotter(plotting.textile_plotter, coupon, None) as view:
+        assert "yarn index" in view.scalar_bars
+        assert_mm_axes(view, "z [mm]")
 
 
 @pytest.mark.serial
@@ -66,13 +71,10 @@ def test_the_height_field_has_its_scalar_bar_and_axes():
     a = np.arange(20).reshape(5, 4)
     triangles = np.vstack([np.column_stack((a[:-1, :-1].ravel(), a[1:, :-1].ravel(), a[1:, 1:].ravel())),
                            np.column_stack((a[:-1, :-1].ravel(), a[1:, 1:].ravel(), a[:-1, 1:].ravel()))])
-    with plotting.offscreen():
-        plotter = plotting.height_field_plotter(points, triangles, 0.1 * points[:, 0], "w", "a plate", warp=5.0)
-        try:
-            assert "w [mm]" in plotter.scalar_bars
-            assert_mm_axes(plotter, "w [mm], drawn x5")
-        finally:
-            plotter.close()
+    with plotter(plotting.height_field_plotter, points, triangles, 0.1 * points[:, 0], "w", "a plate",
+                 warp=5.0) as view:
+        assert "w [mm]" in view.scalar_bars
+        assert_mm_axes(view, "w [mm], drawn x5")
 
 
 @pytest.mark.serial

@@ -165,7 +165,7 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.set_defaults(run=commands.solve)
 
 
-def _mould(text: str):
+def _mould(text: str) -> str | float | None:
     """--mould's value: "auto", None ("none") or a thickness [mm]."""
     if text in ("auto", "none"):
         return None if text == "none" else text

@@ -21,9 +21,10 @@ __all__ = ["build", "load_input", "mesh", "report", "solve", "versions"]
 
 
 def versions(_args) -> int:
-    import dolfinx
     import petsc4py
     import ufl
+
+    import dolfinx
 
     print(f"textile_fenicsx {__version__}")
     print(f"dolfinx {dolfinx.__version__} (git {dolfinx.git_commit_hash[:10]})")
@@ -64,8 +65,8 @@ def build(args) -> int:
     from mpi4py import MPI
 
     from textile_fenicsx.config import save_model
-    from textile_fenicsx.surfaces import YarnSurfaces
     from textile_fenicsx.plotting import plot_textile
+    from textile_fenicsx.surfaces import YarnSurfaces
     from textile_fenicsx.tg3 import write_tg3
     from textile_fenicsx.weaves import build
 
@@ -256,7 +257,8 @@ def _repeated(textile, args, mesh=None, ranks: int = 1, bytes_per_dof: float | N
         from textile_fenicsx.meshes.projected import check_memory
 
         check_memory(textile, mesh, ranks, tuple(args.repeat), bytes_per_dof or BYTES_PER_DOF)
-    return tile(textile, *args.repeat, free_edges=args.free_edges)
+    nx, ny = args.repeat
+    return tile(textile, nx, ny, free_edges=args.free_edges)
 
 
 def _named(path, write, *args):

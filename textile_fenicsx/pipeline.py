@@ -13,13 +13,13 @@ import numpy as np
 from mpi4py import MPI
 
 from textile_fenicsx.correct import CorrectionOptions, corrected_textile
-from textile_fenicsx.legs import STEEP, leg_loads, split_steep
-from textile_fenicsx.slopes import slope_thickness
-from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
-from textile_fenicsx.memory import release_freed_memory
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.legs import STEEP, leg_loads, split_steep
 from textile_fenicsx.limits import check_length
+from textile_fenicsx.memory import release_freed_memory
+from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
+from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.textile import Textile
 
@@ -62,7 +62,7 @@ class Settings:
         penalty method)."""
         if self.mould == "auto":
             return textile.thickness if self.solver.method == "exact" else None
-        return self.mould
+        return None if self.mould is None else float(self.mould)  # a number (__post_init__ checked it)
 
 
 @dataclass

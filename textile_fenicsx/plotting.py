@@ -12,8 +12,12 @@ import os
 import shutil
 import subprocess
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import dolfinx
 
 
 @contextlib.contextmanager
@@ -146,7 +150,8 @@ def plot_height_field(u: dolfinx.fem.Function, path: Path, title: str, warp: flo
     if gathered is None:
         return
     with offscreen():
-        plotter = height_field_plotter(*gathered, u.name, title, warp)
+        points, triangles, values = gathered
+        plotter = height_field_plotter(points, triangles, values, u.name, title, warp)
         plotter.screenshot(str(path))
         plotter.close()
 

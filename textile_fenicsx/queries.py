@@ -14,11 +14,13 @@ call them.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from itertools import product
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from textile_fenicsx.rays import lattice, plan_box, vertical_hits
@@ -109,7 +111,7 @@ def yarn_triangles(textile: Textile, i: int, region: tuple | None, cache: dict) 
     return tris
 
 
-def columns(textile: Textile, xy, yarns=None) -> Columns:
+def columns(textile: Textile, xy: ArrayLike, yarns: Iterable[int] | None = None) -> Columns:
     """Vertical-ray intervals of every yarn (or those listed) over in-plane points xy (N, 2)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     probe = xy + np.array([0.7548776662, 0.5698402910]) * RAY_NUDGE
@@ -136,7 +138,7 @@ def columns(textile: Textile, xy, yarns=None) -> Columns:
     return Columns(len(xy), point[order].astype(int), yarn[order].astype(int), bottom[order], top[order], odd)
 
 
-def inside(textile: Textile, points) -> np.ndarray:
+def inside(textile: Textile, points: ArrayLike) -> np.ndarray:
     """(N, n_yarns) booleans: is 3D point k inside yarn i."""
     points = np.asarray(points, float).reshape(-1, 3)
     col = textile.columns(points[:, :2])
@@ -147,7 +149,7 @@ def inside(textile: Textile, points) -> np.ndarray:
     return out
 
 
-def nearest_centreline(textile: Textile, i: int, points) -> tuple[np.ndarray, np.ndarray]:
+def nearest_centreline(textile: Textile, i: int, points: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Positions and unit tangents (N, 3) of yarn i's centreline (periodic copies included) at the
     samples nearest to `points`: (N, 2) in-plane (nearest in plan) or (N, 3) positions."""
     points = np.asarray(points, float)

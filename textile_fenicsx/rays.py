@@ -7,6 +7,8 @@ on a regular lattice (`lattice` finds one), through the lattice's own arithmetic
 both test the same pairs with the same arithmetic, in chunks of bounded memory.
 """
 
+from collections.abc import Iterable, Iterator
+
 import numpy as np
 
 __all__ = ["lattice", "plan_box", "vertical_hits"]
@@ -55,11 +57,22 @@ def vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float,
     start = np.searchsorted(spid, bid, "left")
     n = np.searchsorted(spid, bid, "right") - start
     del bid
+
+    def candidates() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for first, last in _chunks(n):  # (triangle, bin) entries
+            nn = n[first:last]
+            t_of = tri_ids[np.repeat(rep[first:last], nn)]
+            p_of = order[np.repeat(start[first:last], nn) + np.arange(nn.sum()) - np.repeat(np.cumsum(nn) - nn, nn)]
+            yield t_of, p_of
+
+    return _hits(tris, area2, pts, candidates())
+
+
+def _hits(tris: np.ndarray, area2: np.ndarray, pts: np.ndarray,
+          candidates: Iterable[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """(point index, z) of the crossings among chunks of candidate (triangle, point) index pairs."""
     hit_p, hit_z = [], []
-    for first, last in _chunks(n):  # (triangle, bin) entries
-        nn = n[first:last]
-        t_of = tri_ids[np.repeat(rep[first:last], nn)]
-        p_of = order[np.repeat(start[first:last], nn) + np.arange(nn.sum()) - np.repeat(np.cumsum(nn) - nn, nn)]
+    for t_of, p_of in candidates:
         T, p = tris[t_of], pts[p_of]
         inside, z = _crossing(T, p, area2[t_of])
         hit_p.append(p_of[inside])
@@ -69,7 +82,7 @@ def vertical_hits(tris: np.ndarray, pts: np.ndarray, bin_size: float,
     return np.concatenate(hit_p), np.concatenate(hit_z)
 
 
-def _chunks(counts: np.ndarray):
+def _chunks(counts: np.ndarray) -> Iterator[tuple[int, int]]:
     """(first, last) slices of consecutive entries whose counts of candidate pairs add up to at
     most _CHUNK (one entry at least)."""
     ends = np.cumsum(counts)
@@ -99,7 +112,7 @@ def _crossing(T: np.ndarray, p: np.ndarray, area2: np.ndarray) -> tuple[np.ndarr
     return inside, l0[inside] * A[inside, 2] + l1[inside] * B[inside, 2] + l2[inside] * C[inside, 2]
 
 
-def lattice(pts: np.ndarray):
+def lattice(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int], np.ndarray] | None:
     """If the points (N, 2) are nodes of a regular axis-aligned lattice (a metrics grid, a rank's
     share of one, a cut along x or y), without repeats and filling at least a quarter of the nodes
     between their extremes: (origin (2,), steps (2,), shape (nx, ny), the point at each node or -1);
@@ -111,7 +124,10 @@ def lattice(pts: np.ndarray):
         k = np.rint((pts[:, d] - u[0]) / h).astype(np.int64)
         if np.max(np.abs(u[0] + k * h - pts[:, d])) > 1e-9 * max(h, abs(u[0]), abs(u[-1])):
             return None
-        origin.append(u[0]), steps.append(h), shape.append(int(k.max()) + 1), index.append(k)
+        origin.append(u[0])
+        steps.append(h)
+        shape.append(int(k.max()) + 1)
+        index.append(k)
     if shape[0] * shape[1] > 4 * len(pts):
         return None
     node = np.full(shape[0] * shape[1], -1, np.int64)
@@ -119,10 +135,12 @@ def lattice(pts: np.ndarray):
     node[flat] = np.arange(len(pts))
     if np.any(node[flat] != np.arange(len(pts))):  # a point given twice
         return None
-    return np.array(origin), np.array(steps), tuple(shape), node
+    return np.array(origin), np.array(steps), (shape[0], shape[1]), node
 
 
-def _lattice_hits(tris, area2, t_min, t_max, pts, origin, steps, shape, node):
+def _lattice_hits(tris: np.ndarray, area2: np.ndarray, t_min: np.ndarray, t_max: np.ndarray, pts: np.ndarray,
+                  origin: np.ndarray, steps: np.ndarray, shape: tuple[int, int],
+                  node: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """vertical_hits for points on a lattice (`lattice`): each triangle's candidates are the
     lattice nodes inside its plan's bounding box, found by arithmetic (no binning, no sort), in
     chunks of at most _CHUNK pairs."""
@@ -131,22 +149,18 @@ def _lattice_hits(tris, area2, t_min, t_max, pts, origin, steps, shape, node):
     span = np.maximum(hi - lo + 1, 0)
     counts = span[:, 0] * span[:, 1]
     some = np.flatnonzero(counts)
-    hit_p, hit_z = [], []
-    for first, last in _chunks(counts[some]):
-        tri, n = some[first:last], counts[some[first:last]]
-        t_of = np.repeat(tri, n)
-        local = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-        i = lo[t_of, 0] + local // span[t_of, 1]
-        j = lo[t_of, 1] + local % span[t_of, 1]
-        p_of = node[i * shape[1] + j]
-        t_of, p_of = t_of[p_of >= 0], p_of[p_of >= 0]
-        T, p = tris[t_of], pts[p_of]
-        inside, z = _crossing(T, p, area2[t_of])
-        hit_p.append(p_of[inside])
-        hit_z.append(z)
-    if not hit_p:
-        return np.zeros(0, int), np.zeros(0)
-    return np.concatenate(hit_p), np.concatenate(hit_z)
+
+    def candidates() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for first, last in _chunks(counts[some]):
+            tri, n = some[first:last], counts[some[first:last]]
+            t_of = np.repeat(tri, n)
+            local = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+            i = lo[t_of, 0] + local // span[t_of, 1]
+            j = lo[t_of, 1] + local % span[t_of, 1]
+            p_of = node[i * shape[1] + j]
+            yield t_of[p_of >= 0], p_of[p_of >= 0]
+
+    return _hits(tris, area2, pts, candidates())
 
 
 # Candidate (triangle, point) pairs tested at once by vertical_hits (about 100 bytes each).

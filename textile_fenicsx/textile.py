@@ -9,7 +9,10 @@ tiled). The geometric queries the pipeline asks of a textile are methods that ca
 - `tubes(i)`: closed tubes of yarn i covering the cell (surfaces.py clips them).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +20,9 @@ from textile_fenicsx import limits, queries
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.queries import RAY_NUDGE, Columns
 from textile_fenicsx.yarn import Yarn
+
+if TYPE_CHECKING:
+    from textile_fenicsx.coupon import Tiling
 
 __all__ = ["RAY_NUDGE", "Cell", "Columns", "Resolution", "Textile"]
 
@@ -106,7 +112,7 @@ class Textile:
     yarns: list = field(default_factory=list)
     name: str = "textile"
     resolution: Resolution = field(default_factory=Resolution)
-    tiling: object = None
+    tiling: Tiling | None = None
     thickness: float | None = None
 
     def __post_init__(self):
@@ -137,8 +143,8 @@ class Textile:
         r = self.resolution
         if not isinstance(r, Resolution):
             raise TextileError(f"textile {self.name!r}: resolution must be a Resolution, got {type(r).__name__}")
-        stations = sum(float(np.sum(np.maximum(np.ceil(np.linalg.norm(np.diff(y.nodes, axis=0), axis=1) / r.spacing), 4)))
-                       for y in self.yarns)
+        stations = sum(float(np.sum(np.maximum(np.ceil(np.linalg.norm(np.diff(y.nodes, axis=0), axis=1) / r.spacing),
+                                               4))) for y in self.yarns)
         points = stations * r.section_points
         if points > limits.MAX_SURFACE_POINTS:
             raise TextileError(f"textile {self.name!r}: its yarn surfaces would have about {points:.3g} points "
@@ -153,8 +159,8 @@ class Textile:
         with np.errstate(over="ignore"):
             a, b = p[0] / c.lx, p[1] / c.ly
         tol = 1e-6
-        if not (np.isfinite(a) and np.isfinite(b)) or abs(a - round(a)) > tol or abs(b - round(b)) > tol or abs(p[2]) > tol * max(c.lx, c.ly) \
-                or (round(a), round(b)) == (0, 0):
+        if not (np.isfinite(a) and np.isfinite(b)) or abs(a - round(a)) > tol or abs(b - round(b)) > tol \
+                or abs(p[2]) > tol * max(c.lx, c.ly) or (round(a), round(b)) == (0, 0):
             raise TextileError(f"{yarn.name}: not periodic over the cell: its last master node is its first "
                                f"moved by ({p[0]:g}, {p[1]:g}, {p[2]:g}) mm, which is not a whole number of "
                                f"cells ({c.lx:g} x {c.ly:g} mm, no rise); close the path or mark the yarn "

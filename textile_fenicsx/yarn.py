@@ -36,7 +36,7 @@ class Yarn:
     """
 
     nodes: np.ndarray
-    section: object
+    section: ConstantSection | NodeSections | PositionSections
     interpolation: str = "bezier"
     periodic: bool = True
     repeats: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -67,13 +67,14 @@ class Yarn:
         if not isinstance(self.section, (ConstantSection, NodeSections, PositionSections)):
             raise TextileError(f"{label}: section must be ConstantSection, NodeSections or PositionSections")
         if isinstance(self.section, NodeSections) and len(self.section.at_nodes) != len(self.nodes):
-            raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} master nodes")
+            raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} "
+                               "master nodes")
         if isinstance(self.section, NodeSections):
             segments = [m[0] for m in self.section.mid]
             if any(not (0 <= k < len(self.nodes) - 1 and 0 < t < 1) for k, t, _ in self.section.mid) \
                     or len(set(segments)) != len(segments):
-                raise TextileError(f"{label}: a mid-segment section needs a segment 0..{len(self.nodes) - 2} (one each) "
-                                   "and 0 < t < 1")
+                raise TextileError(f"{label}: a mid-segment section needs a segment 0..{len(self.nodes) - 2} "
+                                   "(one each) and 0 < t < 1")
         self.repeats = np.array(self.repeats, dtype=float).reshape(-1, 3)
         if not np.all(np.isfinite(self.repeats)):
             raise TextileError(f"{label}: a repeat vector is not finite")

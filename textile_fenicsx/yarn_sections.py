@@ -21,7 +21,7 @@ class ConstantSection:
 
     section: Section
 
-    def sections(self):
+    def sections(self) -> tuple[Section, ...]:
         return (self.section,)
 
     def points_along(self, nodes: np.ndarray, i: np.ndarray, t: np.ndarray, n_points: int) -> np.ndarray:
@@ -40,7 +40,7 @@ class NodeSections:
     polar: bool = False
     mid: tuple = ()
 
-    def sections(self):
+    def sections(self) -> tuple[Section, ...]:
         return tuple(self.at_nodes) + tuple(m[2] for m in self.mid)
 
     def points_along(self, nodes: np.ndarray, i: np.ndarray, t: np.ndarray, n_points: int) -> np.ndarray:
@@ -68,7 +68,7 @@ class PositionSections:
     ramped: bool = False
     polar: bool = False
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if len(self.positions) != len(self.at_positions) or not self.positions:
             raise TextileError("position sections need as many positions as sections, at least one")
         limits.check_many("position sections", len(self.positions), limits.MAX_NODES_PER_YARN)
@@ -76,7 +76,7 @@ class PositionSections:
         if np.any(~np.isfinite(p)) or np.any(np.diff(p) < 0):
             raise TextileError(f"section positions must be finite and increasing, got {self.positions}")
 
-    def sections(self):
+    def sections(self) -> tuple[Section, ...]:
         return tuple(self.at_positions)
 
     def points_along(self, nodes: np.ndarray, i: np.ndarray, t: np.ndarray, n_points: int) -> np.ndarray:
