@@ -57,7 +57,7 @@ def test_the_3d_view_has_axes_in_mm_and_names_the_yarns():
 
 @pytest.mark.serial
 def test_a_coupon_with_many_yarns_gets_a_scalar_bar_instead():
-    coupon = tile(build("plain"), 6, 6)  # 24 x 2 yarns: past the legend's limit
+    coupon = tile(build("plain"), 8, 8)  # 32 yarns: past the legend's limit
     assert len(coupon.yarns) > plotting.MAX_LEGEND
     with plotter(plotting.textile_plotter, coupon, None) as view:
         assert "yarn index" in view.scalar_bars

@@ -63,7 +63,7 @@ def cut_lines(textile) -> list:
 
     y0 = textile.yarns[0]
     a, b = along(0)
-    lines = [("along yarn 0", a, b)]
+    lines = [(f"along {y0.name}", a, b)]
     if abs(y0.period[0]) >= abs(y0.period[1]):
         centre = a[1]
         others = sorted(float(np.mean(y.nodes[:-1, 1])) for y in textile.yarns[1:]

@@ -79,27 +79,28 @@ def gather_p1_surface(u: dolfinx.fem.Function, root: int = 0):
 
 
 # At most this many named entries in a legend; more yarns (a coupon's) get a scalar bar of the index.
-MAX_LEGEND = 20
+MAX_LEGEND = 30
 # The 3D views stretch z by this much (fabrics are thin); the axes' labels show true millimetres.
 Z_STRETCH = 2.0
 
 
 def yarn_colours(n: int) -> np.ndarray:
-    """RGB colours (n, 3) in [0, 1] of yarns 0..n-1, the same in every figure (matplotlib's tab20)."""
+    """RGB colours (n, 3) in [0, 1] of yarns 0..n-1, the same in every figure: matplotlib's tab20,
+    tab20b and tab20c one after the other (60 colours, then again)."""
     from matplotlib import colormaps
 
-    return np.array([colormaps["tab20"](i % 20)[:3] for i in range(n)])
+    palette = [colormaps[name](k)[:3] for name in ("tab20", "tab20b", "tab20c") for k in range(20)]
+    return np.array([palette[i % len(palette)] for i in range(n)])
 
 
 def mm_axes(plotter, bounds, z_stretch: float = 1.0, z_name: str = "z") -> None:
-    """Axes in mm on a 3D view: the bounding box's x and y edges with ticks (VTK's cube axes), and a
-    ruler up one vertical edge for z (the cube axes leave a thin z edge without labels); `bounds`
-    (x0, x1, y0, y1, z0, z1) are the true ones, the z title says when z is drawn stretched."""
-    bounds = [round(float(b), 9) + 0.0 for b in bounds]  # no -6.9e-18 at the origin
+    """Axes in mm on a 3D view: the scene's x and y edges with ticks (VTK's cube axes, which label
+    the scene's bounds on every render), and a ruler up one vertical edge for z (the cube axes leave
+    a thin z edge without labels) from z0 to z1 [mm], drawn `z_stretch` times taller; `bounds`
+    (x0, x1, y0, y1, z0, z1) place the ruler."""
     x0, x1, y0, y1, z0, z1 = bounds
-    plotter.show_bounds(axes_ranges=bounds, xtitle="x [mm]", ytitle="y [mm]", show_zaxis=False,
-                        show_zlabels=False, location="outer", ticks="outside", n_xlabels=4, n_ylabels=4,
-                        font_size=10, fmt="%.3g")
+    plotter.show_bounds(xtitle="x [mm]", ytitle="y [mm]", ztitle="", show_zaxis=False, show_zlabels=False,
+                        location="outer", ticks="outside", n_xlabels=4, n_ylabels=4, font_size=10, fmt="%.3g")
     ztitle = f"{z_name} [mm]" + ("" if z_stretch == 1 else f", drawn x{z_stretch:g}")
     # drawn downwards, so that its labels stand left of the edge, off the yarns
     ruler = plotter.add_ruler((x1, y0, z1 * z_stretch), (x1, y0, z0 * z_stretch), title=ztitle, number_labels=2,
@@ -168,20 +169,24 @@ def textile_plotter(textile, surfaces, title: str | None = None):
 
         surfaces = YarnSurfaces.build(textile, resolution=EXPORT)
     mesh = surfaces.polydata()
-    points = surfaces.points
+    # to the nanometre: the axes label the scene's bounds, and a cell side at -1.4e-17 would show so
+    mesh.points = np.round(mesh.points, 9) + 0.0
     n = len(textile.yarns)
     colours = yarn_colours(n)
-    x0, x1, y0, y1 = textile.cell.bounds
-    z0, z1 = float(points[:, 2].min()), float(points[:, 2].max())
+    x0, x1, y0, y1 = (round(b, 9) + 0.0 for b in textile.cell.bounds)
+    z0, z1 = float(mesh.points[:, 2].min()), float(mesh.points[:, 2].max())
     plotter = pyvista.Plotter(off_screen=True, window_size=(1600, 1000))
     if n <= MAX_LEGEND:
         mesh.cell_data["colour"] = (colours[mesh.cell_data["yarn"]] * 255).astype(np.uint8)
         plotter.add_mesh(mesh, scalars="colour", rgb=True, smooth_shading=True)
         legend(plotter, [(y.name, colours[i]) for i, y in enumerate(textile.yarns)])
     else:
-        plotter.add_mesh(mesh, scalars="yarn", cmap="tab20", smooth_shading=True,
-                         scalar_bar_args={"title": "yarn index", "vertical": True, "position_x": 0.88,
-                                          "position_y": 0.25, "fmt": "%.0f"})
+        from matplotlib.colors import ListedColormap
+
+        plotter.add_mesh(mesh, scalars="yarn", cmap=ListedColormap(colours), clim=[0, n - 1],
+                         smooth_shading=True, scalar_bar_args={"title": "yarn index", "vertical": True,
+                                                               "position_x": 0.88, "position_y": 0.25,
+                                                               "fmt": "%.0f"})
     plotter.add_mesh(pyvista.Box((x0, x1, y0, y1, z0, z1)), style="wireframe", color="grey")
     plotter.add_text(title or textile.name, font_size=12)
     plotter.set_scale(zscale=Z_STRETCH)
@@ -282,7 +287,9 @@ def cross_sections_figure(before, after, lines: list, n: int = 800):
     import matplotlib.pyplot as plt
 
     colours = yarn_colours(max(len(before.yarns), len(after.yarns)))
-    fig, axes = plt.subplots(len(lines), 2, figsize=(14, 2.6 * len(lines) + 0.8), squeeze=False, sharey=True)
+    rows = -(-max(len(before.yarns), len(after.yarns)) // 8)  # of the legend, 8 names a row at most
+    fig, axes = plt.subplots(len(lines), 2, figsize=(14, 2.6 * len(lines) + 0.3 + 0.25 * rows), squeeze=False,
+                             sharey=True)
     shown = {}
     for row, (label, a, b) in enumerate(lines):
         a, b = np.asarray(a, float), np.asarray(b, float)
@@ -305,5 +312,5 @@ def cross_sections_figure(before, after, lines: list, n: int = 800):
     order = sorted(shown)
     fig.legend([shown[i] for i in order], [after.yarns[i].name for i in order], loc="lower center",
                ncol=min(len(shown), 8), fontsize=9, frameon=False)
-    fig.tight_layout(rect=(0, 0.9 / (2.6 * len(lines) + 0.8), 1, 1))
+    fig.tight_layout(rect=(0, (0.2 + 0.25 * rows) / fig.get_figheight(), 1, 1))  # room for the legend
     return fig
