@@ -12,7 +12,7 @@ help:
 	@echo "make demos        every demo, outputs in $(OUT)/<demo>/"
 	@echo "make test         serial test pass, then the mpi-marked tests under $(MPIRUN)"
 	@echo "make lint         ruff (rules in pyproject.toml) and mypy on the package; pinned tools from PyPI,"
-	@echo "                  installed once by bin/lint on the host (~1 min the first time, then ~30 s)"
+	@echo "                  installed once by bin/lint on the host (under a minute), then a few seconds"
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
