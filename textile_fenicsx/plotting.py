@@ -280,7 +280,8 @@ def plot_cross_sections(before, after, path: Path, lines: list, n: int = 800) ->
 def cross_sections_figure(before, after, lines: list, n: int = 800):
     """The matplotlib Figure of plot_cross_sections: one row per cut, before and after side by
     side, distance along the cut and z in mm, the yarns coloured as in the 3D views and named in
-    a legend below."""
+    a legend below. 14 inches wide, 2.6 inches per cut and 0.3 per row of the legend (8 names a
+    row) high."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -288,7 +289,7 @@ def cross_sections_figure(before, after, lines: list, n: int = 800):
 
     colours = yarn_colours(max(len(before.yarns), len(after.yarns)))
     rows = -(-max(len(before.yarns), len(after.yarns)) // 8)  # of the legend, 8 names a row at most
-    fig, axes = plt.subplots(len(lines), 2, figsize=(14, 2.6 * len(lines) + 0.3 + 0.25 * rows), squeeze=False,
+    fig, axes = plt.subplots(len(lines), 2, figsize=(14, 2.6 * len(lines) + 0.3 * rows), squeeze=False,
                              sharey=True)
     shown = {}
     for row, (label, a, b) in enumerate(lines):
@@ -312,5 +313,5 @@ def cross_sections_figure(before, after, lines: list, n: int = 800):
     order = sorted(shown)
     fig.legend([shown[i] for i in order], [after.yarns[i].name for i in order], loc="lower center",
                ncol=min(len(shown), 8), fontsize=9, frameon=False)
-    fig.tight_layout(rect=(0, (0.2 + 0.25 * rows) / fig.get_figheight(), 1, 1))  # room for the legend
+    fig.tight_layout(rect=(0, 0.3 * rows / fig.get_figheight(), 1, 1))  # room for the legend
     return fig
