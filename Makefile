@@ -5,12 +5,14 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi docker-test bench bench-outer sweep clean
+.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer sweep clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
 	@echo "make demos        every demo, outputs in $(OUT)/<demo>/"
 	@echo "make test         serial test pass, then the mpi-marked tests under $(MPIRUN)"
+	@echo "make lint         ruff (rules in pyproject.toml) and mypy on the package; pinned tools from PyPI,"
+	@echo "                  installed once by bin/lint on the host (under a minute), then a few seconds"
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
@@ -40,6 +42,10 @@ test-serial:
 
 test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
+
+lint:
+	bin/lint ruff
+	bin/lint mypy
 
 docker-test:
 	bin/docker-test $(OUT)/docker-test

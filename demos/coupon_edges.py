@@ -62,7 +62,8 @@ for label, free in (("periodic", False), ("free edges", True)):
 if comm.rank == 0:
     x0, x1, y0, y1 = corrected["periodic"].cell.bounds
     m = 60 * n
-    xs, ys = np.linspace(x0, x1, m + 1)[:-1] + (x1 - x0) / (2 * m), np.linspace(y0, y1, m + 1)[:-1] + (y1 - y0) / (2 * m)
+    xs = np.linspace(x0, x1, m + 1)[:-1] + (x1 - x0) / (2 * m)
+    ys = np.linspace(y0, y1, m + 1)[:-1] + (y1 - y0) / (2 * m)
     X, Y = np.meshgrid(xs, ys, indexing="ij")
     xy = np.column_stack((X.ravel(), Y.ravel()))
     tops = {}

@@ -21,6 +21,7 @@ from mpi4py import MPI
 from textile_fenicsx.correct import CorrectionOptions, corrected_textile
 from textile_fenicsx.meshes.midsurface import mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+from textile_fenicsx.plotting import yarn_colours
 from textile_fenicsx.solver import PlateParameters, solve
 from textile_fenicsx.weaves import build
 
@@ -56,16 +57,22 @@ if comm.rank == 0:
     y0 = float(np.mean(textile.yarns[0].nodes[:-1, 1]))
     x = np.linspace(0, textile.cell.lx, 600)
     xy = np.column_stack((x, np.full_like(x, y0)))
-    fig, axes = plt.subplots(len(results) + 1, 1, figsize=(10, 2.1 * (len(results) + 1)), sharex=True, sharey=True)
+    fig, axes = plt.subplots(len(results) + 1, 1, figsize=(10, 2.1 * (len(results) + 1) + 0.3), sharex=True,
+                             sharey=True)
+    colours, shown = yarn_colours(len(textile.yarns)), {}
     for ax, (label, t) in zip(axes, [("idealised", textile)] + list(results.items())):
         bot, top = t.columns(xy).envelope(len(t.yarns))
         for i in range(len(t.yarns)):
-            ax.fill_between(x, bot[:, i], top[:, i], where=~np.isnan(bot[:, i]), alpha=0.75, linewidth=0,
-                            color=plt.get_cmap("tab10")(i % 10))
+            if not np.all(np.isnan(bot[:, i])):
+                shown[i] = ax.fill_between(x, bot[:, i], top[:, i], where=~np.isnan(bot[:, i]), alpha=0.75,
+                                           linewidth=0, color=colours[i])
         ax.set_title(label, fontsize=9)
         ax.set_ylabel("z [mm]")
     axes[-1].set_xlabel("x [mm] along warp 0")
-    fig.tight_layout()
+    # the yarns in the colours of the run's other figures, named below
+    fig.legend([shown[i] for i in sorted(shown)], [textile.yarns[i].name for i in sorted(shown)], loc="lower center",
+               ncol=len(shown), fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0.3 / fig.get_figheight(), 1, 1))
     out.mkdir(parents=True, exist_ok=True)
     fig.savefig(out / "parameter_study.png", dpi=110)
     say(f"parameter_study: wrote {out}/parameter_study.png")

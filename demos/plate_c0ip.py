@@ -24,8 +24,8 @@
 
 # +
 import os
-from pathlib import Path
 import time
+from pathlib import Path
 
 from mpi4py import MPI
 

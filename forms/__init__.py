@@ -11,7 +11,6 @@ from textile_fenicsx.forms.bending import (
     fibre_frame,
     moment,
 )
-
 from textile_fenicsx.forms.contact import contact_energy, contact_forms, penetration_volume, stiffness
 from textile_fenicsx.forms.membrane import foundation, load, tension
 

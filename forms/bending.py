@@ -21,9 +21,11 @@ indefinite).
 """
 
 import ufl
+from ufl import Form, Measure
+from ufl.core.expr import Expr
 
 
-def fibre_frame(d):
+def fibre_frame(d: Expr) -> tuple[Expr, Expr]:
     """Return (d, n): the unit fibre direction and its in-plane normal n = d rotated by +90 degrees.
 
     d: a 2D vector expression (need not be unit length: it is normalised here).
@@ -32,14 +34,14 @@ def fibre_frame(d):
     return d, ufl.as_vector((-d[1], d[0]))
 
 
-def curvature(z, d):
+def curvature(z: Expr, d: Expr) -> tuple[Expr, Expr, Expr]:
     """Curvatures (k11, k22, k12) of the height field z in the frame of fibre direction d."""
     d, n = fibre_frame(d)
     H = ufl.grad(ufl.grad(z))
     return ufl.dot(d, H * d), ufl.dot(n, H * n), ufl.dot(d, H * n)
 
 
-def moment(z, d, Db1, Db2, Db12):
+def moment(z: Expr, d: Expr, Db1: Expr | float, Db2: Expr | float, Db12: Expr | float) -> Expr:
     """Bending moment tensor M = dpsi/dH (2x2, global axes) for stiffnesses Db1, Db2, Db12 [N mm]."""
     d, n = fibre_frame(d)
     k11, k22, k12 = curvature(z, d)
@@ -50,7 +52,8 @@ def moment(z, d, Db1, Db2, Db12):
     )
 
 
-def c0ip_bending(u, v, d, Db1, Db2, Db12, alpha, dx, dS):
+def c0ip_bending(u: Expr, v: Expr, d: Expr, Db1: Expr | float, Db2: Expr | float, Db12: Expr | float,
+                 alpha: Expr | float, dx: Measure, dS: Measure) -> Form:
     """Bilinear form of anisotropic bending, C0 interior penalty, on the cells of dx and facets of dS.
 
     u, v: trial and test functions (or Functions) of a continuous Lagrange space of degree >= 2.
@@ -62,10 +65,10 @@ def c0ip_bending(u, v, d, Db1, Db2, Db12, alpha, dx, dS):
     D = ufl.max_value(ufl.max_value(Db1, Db2), Db12)
     inv_h = ufl.avg(ufl.FacetArea(mesh) / ufl.CellVolume(mesh))
 
-    def M_nn(w):  # average normal moment on a facet
+    def M_nn(w: Expr) -> Expr:  # average normal moment on a facet
         return ufl.dot(ufl.avg(moment(w, d, Db1, Db2, Db12)) * nF("+"), nF("+"))
 
-    def slope_jump(w):
+    def slope_jump(w: Expr) -> Expr:
         return ufl.jump(ufl.grad(w), nF)
 
     return (
@@ -76,7 +79,8 @@ def c0ip_bending(u, v, d, Db1, Db2, Db12, alpha, dx, dS):
     )
 
 
-def clamped_slope_nitsche(u, v, d, Db1, Db2, Db12, alpha, ds, slope=None):
+def clamped_slope_nitsche(u: Expr, v: Expr, d: Expr, Db1: Expr | float, Db2: Expr | float, Db12: Expr | float,
+                          alpha: Expr | float, ds: Measure, slope: Expr | None = None) -> tuple[Form, Form | None]:
     """Nitsche terms that impose the normal slope du/dn = slope on the boundary facets of ds.
 
     Returns (a, L): bilinear and linear parts; the value of u itself is imposed strongly.
@@ -87,10 +91,10 @@ def clamped_slope_nitsche(u, v, d, Db1, Db2, Db12, alpha, ds, slope=None):
     inv_h = ufl.FacetArea(mesh) / ufl.CellVolume(mesh)
     D = ufl.max_value(ufl.max_value(Db1, Db2), Db12)
 
-    def M_nn(w):
+    def M_nn(w: Expr) -> Expr:
         return ufl.dot(moment(w, d, Db1, Db2, Db12) * nB, nB)
 
-    def dn(w):
+    def dn(w: Expr) -> Expr:
         return ufl.dot(ufl.grad(w), nB)
 
     a = (-M_nn(u) * dn(v) - M_nn(v) * dn(u) + alpha * D * inv_h * dn(u) * dn(v)) * ds

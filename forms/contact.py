@@ -14,23 +14,26 @@ through the (exact) dof correspondence of the shared projected mesh.
 """
 
 import ufl
+from ufl import Form, Measure
+from ufl.core.expr import Expr
 
 # g is P2, the energy's density of degree 4 (the conditional does not raise it)
 QUADRATURE = {"quadrature_degree": 4}
 
 
-def stiffness(g, Ec, Et):
+def stiffness(g: Expr, Ec: Expr | float, Et: Expr | float) -> Expr:
     """k(g): Ec where g < 0 (penetration), else Et [N/mm^3]."""
     return ufl.conditional(ufl.lt(g, 0), Ec, Et)
 
 
-def contact_energy(g, Ec, Et, dx, exact: bool = False):
+def contact_energy(g: Expr, Ec: Expr | float, Et: Expr | float, dx: Measure, exact: bool = False) -> Form:
     """Contact energy over the overlap dx [N mm]: 1/2 k(g) g^2 (penalty) or 1/2 Et g^2 (exact)."""
     k = Et if exact else stiffness(g, Ec, Et)
     return 0.5 * k * g**2 * dx(metadata=QUADRATURE)
 
 
-def contact_forms(g, Ec, Et, dx, exact: bool = False):
+def contact_forms(g: Expr, Ec: Expr | float, Et: Expr | float, dx: Measure,
+                  exact: bool = False) -> tuple[Form, Form, Form]:
     """(energy, residual, Jacobian) of the contact energy with respect to the gap Function g."""
     energy = contact_energy(g, Ec, Et, dx, exact)
     V = g.function_space
@@ -38,6 +41,6 @@ def contact_forms(g, Ec, Et, dx, exact: bool = False):
     return energy, residual, ufl.derivative(residual, g, ufl.TrialFunction(V))
 
 
-def penetration_volume(g, dx):
+def penetration_volume(g: Expr, dx: Measure) -> Form:
     """The volume of interpenetration the gap field says: the integral of max(0, -g) [mm^3]."""
     return ufl.max_value(-g, 0) * dx(metadata=QUADRATURE)

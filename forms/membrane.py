@@ -5,19 +5,21 @@ tension per unit width, d the in-plane fibre direction.
 """
 
 import ufl
+from ufl import Form, Measure
+from ufl.core.expr import Expr
 
 
-def tension(u, v, d, sigma1, dx):
+def tension(u: Expr, v: Expr, d: Expr, sigma1: Expr | float, dx: Measure) -> Form:
     """Bilinear form of fibre tension: sigma1 (d . grad u)(d . grad v)."""
     d = d / ufl.sqrt(ufl.dot(d, d))
     return sigma1 * ufl.dot(d, ufl.grad(u)) * ufl.dot(d, ufl.grad(v)) * dx
 
 
-def foundation(u, v, k, dx):
+def foundation(u: Expr, v: Expr, k: Expr | float, dx: Measure) -> Form:
     """Bilinear form of an elastic foundation of stiffness k [N/mm^3]: k u v."""
     return k * u * v * dx
 
 
-def load(v, q, dx):
+def load(v: Expr, q: Expr | float, dx: Measure) -> Form:
     """Linear form of a transverse load q [N/mm^2] (positive up)."""
     return q * v * dx

@@ -21,7 +21,8 @@ from scipy.spatial import cKDTree
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError
-from textile_fenicsx.meshes.projected import GHOST, ProjectedMesh
+from textile_fenicsx.meshes.conversion import GHOST
+from textile_fenicsx.meshes.projected import ProjectedMesh
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +42,10 @@ class MidSurface:
     t: dolfinx.fem.Function          # thickness
     d: dolfinx.fem.Function          # in-plane unit fibre direction, DG0 vector
     cell_kind: dolfinx.mesh.MeshTags  # 1: cell of the unit cell, 2: ghost-strip copy
+
+    def __repr__(self) -> str:
+        return (f"<MidSurface of yarn {self.yarn}: {self.V.dofmap.index_map.size_global} P2 dofs, "
+                f"{self.mesh.topology.index_map(2).size_global} cells>")
 
     @property
     def dx(self):
@@ -62,6 +67,11 @@ class MidSurfaces:
     contact_margin: dict = field(default_factory=dict)  # (upper, lower) -> (n,) gap a node keeps [mm]
     periodic: list = field(default_factory=list)  # per yarn: (n, 2) global parent dofs (image, source)
 
+    def __repr__(self) -> str:
+        name = self.projected.textile.name if self.projected.textile is not None else "a plate"
+        dofs = sum(y.V.dofmap.index_map.size_global for y in self.yarns)
+        return f"<MidSurfaces of {name!r}: {len(self.yarns)} yarns, {dofs} dofs, {len(self.contact)} contact pairs>"
+
 
 def _parent_space(msh):
     return dolfinx.fem.functionspace(msh, ("Lagrange", 2))
@@ -72,6 +82,7 @@ def mid_surfaces(projected: ProjectedMesh) -> MidSurfaces:
     msh = projected.mesh
     comm = msh.comm
     textile = projected.textile
+    assert textile is not None  # a textile's mesh (plate_mesh's plates have none)
     V = _parent_space(msh)
     X = V.tabulate_dof_coordinates()[:, :2]
     out = MidSurfaces(projected, V)
@@ -155,7 +166,8 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
     """Stacking order per multi-yarn cell and the dof pairs of vertically adjacent yarns."""
     proj = ms.projected
     by_tag = {t: s for t, s in proj.coverage.items() if len(s) >= 2}
-    pairs, apart = {}, {}
+    pairs: dict[tuple[int, int], list] = {}
+    apart: dict[tuple[int, int], tuple] = {}
     for tag, yarns in by_tag.items():
         for c in proj.cell_tags.indices[proj.cell_tags.values == tag]:
             order = sorted(yarns, key=lambda y: -mean_z0[y][int(c)])  # top first
@@ -246,6 +258,7 @@ def _gap_margins(ms: MidSurfaces) -> None:
     basis = _margin_points()
     msh = ms.V.mesh
     textile = ms.projected.textile
+    assert textile is not None  # a textile's mesh (plate_mesh's plates have none)
     X = msh.geometry.x
 
     def points(u, l):  # (cells x MARGIN_POINTS, 2) in-plane points of the pair's cells
@@ -300,12 +313,14 @@ def _check_stacking(ms: MidSurfaces, apart: dict) -> None:
     local = {}
     for key, (gap, c) in apart.items():
         local[key] = (gap, dolfinx.mesh.compute_midpoints(msh, 2, np.array([c], np.int32))[0, :2].tolist())
-    merged = {}
+    merged: dict[tuple[int, int], tuple] = {}
     for part in comm.allgather(local):
         for key, (gap, xy) in part.items():
             if gap >= merged.get(key, (-1.0, None))[0]:
                 merged[key] = (gap, xy)
-    names = [y.name for y in ms.projected.textile.yarns]
+    textile = ms.projected.textile
+    assert textile is not None  # a textile's mesh (plate_mesh's plates have none)
+    names = [y.name for y in textile.yarns]
     for (a, b), (gap, xy) in sorted(merged.items()):
         if gap < 1e-6:
             raise GeometryError(f"{names[a]} (yarn {a}) and {names[b]} (yarn {b}) lie at the same height over "
@@ -318,6 +333,7 @@ def _periodic_structure(ms: MidSurfaces) -> None:
     strip) paired with their periodic images inside the cell; none when the edges are free."""
     V, comm = ms.V, ms.V.mesh.comm
     cell = ms.projected.cell
+    assert cell is not None  # projected meshes are made with their cell
     if not cell.periodic:
         ms.periodic.extend(np.zeros((0, 2), np.int64) for _ in ms.yarns)
         return
@@ -356,14 +372,14 @@ def _periodic_structure(ms: MidSurfaces) -> None:
 
 def mesh_statistics(ms: MidSurfaces) -> dict:
     """JSON-ready counts and checks of a projected mesh and its mid-surfaces (collective)."""
-    import ufl
 
-    from textile_fenicsx.meshes.projected import footprint_area
+    from textile_fenicsx.meshes.footprints import footprint_area
     from textile_fenicsx.metrics import measure
 
     proj = ms.projected
     comm = proj.mesh.comm
     textile = proj.textile
+    assert textile is not None  # a textile's mesh (plate_mesh's plates have none)
     volumes = measure(textile, 200, comm=comm)["yarn_volume"]["per_yarn"]
     per_yarn = []
     for y in ms.yarns:

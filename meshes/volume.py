@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +59,7 @@ class VolumeMesh:
     direction: np.ndarray
     yarn_vf: np.ndarray
     yarn_names: list[str]
-    report: dict = field(default_factory=dict)
+    report: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:
         lx, ly, lz = self.box.size
@@ -127,7 +128,7 @@ def periodic_mismatch(points: np.ndarray, box: Box, tol: float = 1e-10) -> dict:
     from scipy.spatial import cKDTree
 
     scale = float(np.max(box.size))
-    out = {}
+    out: dict[str, Any] = {}
     for axis, name in enumerate("xyz"):
         lo, hi = box.lo[axis], box.hi[axis]
         on_lo = points[np.abs(points[:, axis] - lo) <= tol * scale]

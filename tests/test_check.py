@@ -40,7 +40,8 @@ def test_the_convex_shortcut_of_the_self_intersection_check_changes_no_answer():
 
     rng = np.random.default_rng(3)
     base = Ellipse(2.0, 0.5).points(32)
-    polys = [base, base[::-1]] + [base + rng.normal(0, s, base.shape) for s in (1e-3, 1e-2, 0.05, 0.2) for _ in range(50)]
+    polys = [base, base[::-1]] + [base + rng.normal(0, s, base.shape)
+                                  for s in (1e-3, 1e-2, 0.05, 0.2) for _ in range(50)]
     polys += [rng.random((32, 2)) for _ in range(50)]
     polys = np.array(polys)
     fast, full = self_intersecting(polys), _edges_cross(polys)
@@ -72,8 +73,9 @@ def test_contradictory_stacking_is_reported_as_failed(tmp_path):
     # keeps every contact, and the run says so (exit 1), never "converged"
     text = (REPO / "reference" / "models" / "plain.tg3").read_text()
     a, b = text.index('<Yarn index="0"'), text.index('<Yarn index="1"')
-    yarn = text[a:b].replace('1.500000000000e-01" Tangent', 'X" Tangent').replace(
-        '4.500000000000e-01" Tangent', '1.500000000000e-01" Tangent').replace('X" Tangent', '4.500000000000e-01" Tangent')
+    yarn = text[a:b].replace('1.500000000000e-01" Tangent', 'X" Tangent')
+    yarn = yarn.replace('4.500000000000e-01" Tangent', '1.500000000000e-01" Tangent')
+    yarn = yarn.replace('X" Tangent', '4.500000000000e-01" Tangent')
     model = tmp_path / "swapped.tg3"
     model.write_text(text[:a] + yarn + text[b:])
     run = subprocess.run(CLI + ["solve", str(model), "--seed", "0.5", "--no-figures", "--out", str(tmp_path / "run")],

@@ -142,7 +142,7 @@ def test_free_coupon_is_symmetric_and_its_edge_effect_decays():
     L = unit.cell.lx
     names = [u.name for u in unit.yarns]
     diff = np.zeros((3, 3))
-    for i, y in enumerate(ys):
+    for i in range(len(ys)):
         k = names.index(free.textile.yarns[i].name.split(" [")[0])
         pts = np.vstack(comm.allgather(X[i]))
         d = np.abs(evaluate(w[i], pts) - evaluate(periodic.solution.w[k], np.mod(pts, L)))

@@ -13,8 +13,9 @@ from conftest import REPO
 @pytest.mark.serial
 def test_dolfinx_is_0_9():
     import basix
-    import dolfinx
     import ufl
+
+    import dolfinx
 
     assert dolfinx.__version__.startswith("0.9."), dolfinx.__version__
     assert basix.__version__.startswith("0.9."), basix.__version__
@@ -95,3 +96,4 @@ def test_installed_package_holds_every_module(tmp_path):
                          capture_output=True, text=True, cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "modules import from the installation" in run.stdout
+    assert (target / "textile_fenicsx" / "py.typed").is_file()  # PEP 561: the annotations are shipped

@@ -20,12 +20,11 @@ from conftest import REPO
 from textile_fenicsx.cli import build_parser
 from textile_fenicsx.config import load_model
 from textile_fenicsx.coupon import tile
-from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.errors import GeometryError, SolverError, TextileError
 from textile_fenicsx.meshes.midsurface import mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, estimated_dofs, projected_mesh
 from textile_fenicsx.sections import Ellipse
 from textile_fenicsx.solver import PlateParameters, SolverOptions, solve
-from textile_fenicsx.errors import SolverError
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.weaves import build
 from textile_fenicsx.yarn import ConstantSection, Yarn
@@ -376,10 +375,10 @@ def test_the_memory_guard_covers_what_the_bench_measures(tmp_path, factors):
     # (BYTES_PER_DOF_OUT_OF_CORE with MUMPS' factors on disk, --out-of-core).
     # The bench's own record of a small coupon (84 000 dofs, its own process): the guard's need
     # covers the peak resident set, and is not so pessimistic (4x) that it refuses runs that fit.
-    from textile_fenicsx.meshes import projected
+    from textile_fenicsx import memory
 
-    BYTES_PER_RANK = projected.BYTES_PER_RANK
-    BYTES_PER_DOF = projected.BYTES_PER_DOF if factors == "in memory" else projected.BYTES_PER_DOF_OUT_OF_CORE
+    BYTES_PER_RANK = memory.BYTES_PER_RANK
+    BYTES_PER_DOF = memory.BYTES_PER_DOF if factors == "in memory" else memory.BYTES_PER_DOF_OUT_OF_CORE
     name = "satin4 2x2 0.25" + ("" if factors == "in memory" else " out of core")
     proc = subprocess.run([sys.executable, str(REPO / "bench" / "bench.py"), "--case", name], capture_output=True,
                           text=True, timeout=600, env={**os.environ, "TEXTILE_FENICSX_BENCH_TMP": str(tmp_path)})
@@ -434,7 +433,8 @@ def test_toml_resolution_out_of_bounds_is_refused(resolution, message, tmp_path)
 
 @pytest.mark.serial
 @pytest.mark.parametrize("args, message", [
-    (["solve", "plain", "--repeat", "200", "200"], "coupon repeats nx (--repeat) must be a whole number from 1 to 100, got 200"),
+    (["solve", "plain", "--repeat", "200", "200"],
+     "coupon repeats nx (--repeat) must be a whole number from 1 to 100, got 200"),
     (["solve", "plain", "--repeat", "100", "100", "--memory-limit", "8"],
      "a 100 x 100 coupon at mesh seed 0.5 mm would give about"),
     (["mesh", REPO / "reference" / "models" / "satin4.tg3", "--repeat", "100", "100", "--free-edges",
@@ -442,11 +442,14 @@ def test_toml_resolution_out_of_bounds_is_refused(resolution, message, tmp_path)
     (["solve", "plain", "--seed", "1e-9"], "mesh seed must be at least 0.001 mm, got 1e-09"),
     (["solve", "plain", "--seed", "2000"], "mesh seed must be at most 1000 mm"),
     (["solve", "plain", "--max-iterations", "1000000000"], "max_iterations must be a whole number from 1 to 10000"),
-    (["report", REPO / "reference" / "models" / "plain.tg3", "--grid", "0"], "--grid must be a whole number from 1 to 1000, got 0"),
-    (["report", REPO / "reference" / "models" / "plain.tg3", "--grid", "100000"], "--grid must be a whole number from 1 to 1000"),
+    (["report", REPO / "reference" / "models" / "plain.tg3", "--grid", "0"],
+     "--grid must be a whole number from 1 to 1000, got 0"),
+    (["report", REPO / "reference" / "models" / "plain.tg3", "--grid", "100000"],
+     "--grid must be a whole number from 1 to 1000"),
     (["build", "satin", "--harness", "1000000"], "satin harness must be a whole number from 1 to 100"),
     (["build", "plain", "--set", "spacing=1e300"], "warp spacing[0] must be at most 1000 mm"),
-    (["build", "orthogonal", "--set", "n_weft_columns=1e9"], "orthogonal: n_weft_columns must be a whole number from 1 to 100"),
+    (["build", "orthogonal", "--set", "n_weft_columns=1e9"],
+     "orthogonal: n_weft_columns must be a whole number from 1 to 100"),
 ])
 def test_command_line_sizes_out_of_bounds_are_refused(args, message, tmp_path):
     # --repeat 200 200 spent minutes inside the memory guard; --seed 1e-9 and --grid 0 / 1e5 ended
@@ -476,7 +479,7 @@ def test_factors_on_disk_let_the_guard_take_a_larger_coupon(tmp_path):
     # --out-of-core: the guard assumes BYTES_PER_DOF_OUT_OF_CORE per dof. A memory limit between
     # the two needs of a 2 x 2 crowfoot satin coupon: refused with the factors in memory, solved
     # with them on disk
-    from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
+    from textile_fenicsx.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
 
     dofs = estimated_dofs(build("crowfoot_satin"), 1.0, (2, 2))
     limit = (dofs * (BYTES_PER_DOF + BYTES_PER_DOF_OUT_OF_CORE) / 2 + BYTES_PER_RANK) / 1e9
@@ -741,8 +744,9 @@ def test_pytest_under_mpirun_still_reports_failures(tmp_path):
 def test_sigterm_to_the_runners_process_group_exits_130(tmp_path):
     # was: 143 from bin/fenicsx-env's shell; the runner now execs the command, which answers itself
     out = tmp_path / "run"
-    proc = subprocess.Popen([str(REPO / "bin" / "fenicsx-env"), "textile-fenicsx", "solve", "orthogonal", "--seed", "0.5",
-                             "--out", str(out)], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+    proc = subprocess.Popen([str(REPO / "bin" / "fenicsx-env"), "textile-fenicsx", "solve", "orthogonal",
+                             "--seed", "0.5", "--out", str(out)], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                            text=True,
                             start_new_session=True)
     seen, deadline = "", time.time() + 120
     while "contact step   2" not in seen and time.time() < deadline:

@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 
 from textile_fenicsx.config import load_model, save_model
 from textile_fenicsx.errors import FormatError, TextileError
-from textile_fenicsx.surfaces import YarnSurfaces, is_closed
 from textile_fenicsx.metrics import measure
 from textile_fenicsx.sections import Ellipse, Polygon
+from textile_fenicsx.surfaces import YarnSurfaces, is_closed
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.tg3 import read_tg3, write_tg3
 from textile_fenicsx.weaves import build, weave2d
@@ -191,10 +191,12 @@ def satin_tg3(reference_dir):
 @pytest.mark.parametrize("edit, message", [
     (lambda s: s[: len(s) // 2], "not valid XML"),
     (lambda s: s.replace("CSectionEllipse", "CSectionHybrid", 1), "unsupported section type 'CSectionHybrid'"),
-    (lambda s: s.replace("CInterpolationBezier", "CInterpolationAdjusted", 1), "unsupported interpolation type 'CInterpolationAdjusted'"),
+    (lambda s: s.replace("CInterpolationBezier", "CInterpolationAdjusted", 1),
+     "unsupported interpolation type 'CInterpolationAdjusted'"),
     (lambda s: s.replace("<Repeat ", "<Wobble ", 1), "unsupported element <Wobble>"),
     (lambda s: s.replace('Width="2.500000000000e+00"', 'Width="-2.5"', 1), "ellipse width must be > 0"),
-    (lambda s: s.replace('Position="0.000000000000e+00, 0.000000000000e+00, 1.75', 'Position="nan, 0, 1.75', 1), "non-finite"),
+    (lambda s: s.replace('Position="0.000000000000e+00, 0.000000000000e+00, 1.75', 'Position="nan, 0, 1.75', 1),
+     "non-finite"),
     (lambda s: s.replace("TexGenModel", "Model"), "expected <TexGenModel>"),
 ])
 def test_bad_tg3_is_named(edit, message, satin_tg3, tmp_path):
@@ -211,9 +213,11 @@ def test_bad_tg3_is_named(edit, message, satin_tg3, tmp_path):
     ("[weave]\ntype = 'plain'\nspacng = 2.0\n", "spacng"),
     ("[cell]\nlx = 4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0, 0]]\nsection = {type = 'circle'}\n",
      "section type 'circle' unknown"),
-    ("[cell]\nlx = 4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0]]\nsection = {type = 'ellipse', width = 1, height = 0.2}\n",
+    ("[cell]\nlx = 4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0]]\n"
+     "section = {type = 'ellipse', width = 1, height = 0.2}\n",
      "yarns[0].nodes"),
-    ("[cell]\nlx = -4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0, 0]]\nsection = {type = 'ellipse', width = 1, height = 0.2}\n",
+    ("[cell]\nlx = -4\nly = 4\n[[yarns]]\nnodes = [[0, 0, 0], [4, 0, 0]]\n"
+     "section = {type = 'ellipse', width = 1, height = 0.2}\n",
      "cell size lx must be > 0"),
     ("name = 'x'\n", "give either a [weave] table or [cell] with [[yarns]]"),
 ])
@@ -304,8 +308,10 @@ def test_tg3_reader_raises_only_format_errors(data, satin_tg3, tmp_path):
 @pytest.mark.serial
 @settings(max_examples=FUZZ, deadline=None, suppress_health_check=SUPPRESS)
 @given(value=st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=5),
-                       st.lists(st.floats(), max_size=4), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2)),
-       key=st.sampled_from(["lx", "nodes", "section", "interpolation", "repeats", "periodic", "width", "type", "yarns"]))
+                       st.lists(st.floats(), max_size=4),
+                       st.dictionaries(st.text(max_size=3), st.integers(), max_size=2)),
+       key=st.sampled_from(["lx", "nodes", "section", "interpolation", "repeats", "periodic", "width", "type",
+                            "yarns"]))
 def test_model_reader_raises_only_format_errors(value, key, tmp_path):
     # Any field replaced by any JSON value: FormatError naming it, or a valid model.
     model = {"cell": {"lx": 4.0, "ly": 2.0},

@@ -4,11 +4,10 @@ import json
 
 import numpy as np
 import pytest
-from mpi4py import MPI
 from scipy.special import ellipe
 
 from textile_fenicsx.metrics import crimp, measure
-from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, polygon_area
+from textile_fenicsx.sections import Ellipse, Lenticular, PowerEllipse, polygon_area
 from textile_fenicsx.textile import Cell, Resolution, Textile
 from textile_fenicsx.tg3 import read_tg3
 from textile_fenicsx.weaves import build, crowfoot_satin, orthogonal, plain, satin, twill
@@ -51,7 +50,8 @@ def test_power_one_is_the_ellipse_and_sections_start_at_plus_s():
 
 # --- yarns: closed forms --------------------------------------------------------------------
 
-def _straight_yarn(L=4.0, y=1.0, z=0.2, section=Ellipse(1.5, 0.3), interpolation="bezier"):
+def _straight_yarn(L=4.0, y=1.0, z=0.2, section=None, interpolation="bezier"):
+    section = Ellipse(1.5, 0.3) if section is None else section
     nodes = [[0, y, z], [L / 2, y, z], [L, y, z]]
     return Yarn(nodes, ConstantSection(section), interpolation, repeats=[[L, 0, 0], [0, 2.0, 0]])
 

@@ -104,9 +104,10 @@ def _png_size(path) -> tuple[int, int]:
 @pytest.mark.mpi
 def test_figures_drawn_in_the_background_are_the_run_s(satin_run, mpi_tmp_path):
     # figures.Painter draws in a child process (on rank 0): the three PNGs land in the folder at
-    # the sizes plotting.py asks for (3D views 1400 x 1000 pixels; the cross-sections 14 x 2.6 inches
-    # per cutting line at 110 dpi, two on this satin: along its first yarn, which is the most
-    # crimped, and between it and the next), and the before and after views are different pictures
+    # the sizes plotting.py asks for (3D views 1600 x 1000 pixels; the cross-sections 14 inches wide,
+    # 2.6 per cutting line and 0.3 for the legend's one row of 8 yarns high, at 110 dpi, two lines on
+    # this satin: along its first yarn, which is the most crimped, and between it and the next), and
+    # the before and after views are different pictures
     from textile_fenicsx.outputs import cut_lines
 
     result, _ = satin_run
@@ -114,9 +115,10 @@ def test_figures_drawn_in_the_background_are_the_run_s(satin_run, mpi_tmp_path):
     if MPI.COMM_WORLD.rank != 0:
         return
     assert sorted(p.name for p in out.glob("*.png")) == ["cross_sections.png", "view_after.png", "view_before.png"]
-    assert _png_size(out / "view_before.png") == _png_size(out / "view_after.png") == (1400, 1000)
+    assert _png_size(out / "view_before.png") == _png_size(out / "view_after.png") == (1600, 1000)
     lines = len(cut_lines(result.textile))
-    assert lines == 2 and _png_size(out / "cross_sections.png") == (14 * 110, round(2.6 * lines * 110))
+    assert len(result.textile.yarns) == 8
+    assert lines == 2 and _png_size(out / "cross_sections.png") == (14 * 110, round((2.6 * lines + 0.3) * 110))
     assert (out / "view_before.png").read_bytes() != (out / "view_after.png").read_bytes()
 
 
@@ -156,7 +158,7 @@ def test_a_bad_figure_job_names_its_file_and_the_painter_goes_on(satin_run, tmp_
         painter.draw([("cross_sections", "sections.png", (result.textile, corrected, [
             ("a line", (0.0, 1.0), (5.6, 1.0))]))])
         assert painter.collect(tmp_path) == [tmp_path / "sections.png"]
-    assert _png_size(tmp_path / "sections.png") == (14 * 110, round(2.6 * 110))
+    assert _png_size(tmp_path / "sections.png") == (14 * 110, round((2.6 + 0.3) * 110))
     assert not (tmp_path / "broken.png").exists()
 
 

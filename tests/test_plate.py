@@ -37,9 +37,10 @@ def test_anisotropy_matters():
 def _sliver_mesh(comm, n=8, width=0.004):
     """The unit square in n x n squares cut into triangles, with one column of squares squeezed to
     `width`: its triangles have a smallest angle of atan(width * n) (1.8 degrees here)."""
-    import dolfinx
     import ufl
     from basix.ufl import element
+
+    import dolfinx
 
     xs = np.sort(np.concatenate([np.linspace(0, 1, n + 1), [0.5 + width]]))
     xs = xs[xs != 0.5 + 1 / n] if 0.5 + 1 / n in xs else xs
@@ -60,11 +61,11 @@ def _sliver_mesh(comm, n=8, width=0.004):
 
 
 def _negative_pivots(msh, penalty_by_cell_diameter: bool) -> int:
-    import dolfinx
-    import dolfinx.fem.petsc
     import ufl
     from petsc4py import PETSc
 
+    import dolfinx
+    import dolfinx.fem.petsc
     from textile_fenicsx.forms import c0ip_bending, foundation
     from textile_fenicsx.solver import PlateParameters
     from textile_fenicsx.solver.linear import DIRECT_LDLT, DirectSolver, negative_pivots
@@ -79,7 +80,9 @@ def _negative_pivots(msh, penalty_by_cell_diameter: bool) -> int:
         n, h = ufl.FacetNormal(msh), ufl.CellDiameter(msh)
         h_F = 2 * h("+") * h("-") / (h("+") + h("-"))
         inv_h = ufl.avg(ufl.FacetArea(msh) / ufl.CellVolume(msh))
-        jump = (lambda w: ufl.jump(ufl.grad(w), n))
+        def jump(w):
+            return ufl.jump(ufl.grad(w), n)
+
         a = a + alpha * (1 / h_F - inv_h) * jump(u) * jump(v) * dS
     A = dolfinx.fem.petsc.assemble_matrix(dolfinx.fem.form(a))
     A.assemble()

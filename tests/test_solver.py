@@ -414,7 +414,9 @@ def test_contact_forms_are_the_derivatives_of_the_energy(crossing_mesh):
     assert np.allclose(A1.to_dense(), A2.to_dense(), rtol=0, atol=1e-12)
     dg = dolfinx.fem.Function(y.V)
     dg.interpolate(lambda x: 0.01 * np.cos(x[0] + x[1]))
-    e = (lambda: MPI.COMM_WORLD.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(energy)), op=MPI.SUM))
+    def e():
+        return MPI.COMM_WORLD.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(energy)), op=MPI.SUM)
+
     slope = MPI.COMM_WORLD.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(ufl.action(residual, dg))),
                                      op=MPI.SUM)
     h = 1e-6

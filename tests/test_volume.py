@@ -64,9 +64,9 @@ def test_voxel_mesh_is_periodic_with_its_fields(comm):
 
 @pytest.mark.mpi
 def test_volume_files_read_back_with_tags_and_fields(comm, mpi_tmp_path):
-    import dolfinx
     import ufl
 
+    import dolfinx
     from textile_fenicsx.volume_files import read_volume
 
     t = cross_ply(fibres={"linear_density": 600, "density": 2.55})
@@ -102,7 +102,6 @@ def test_volume_files_read_back_with_tags_and_fields(comm, mpi_tmp_path):
 @pytest.mark.mpi
 def test_a_file_without_tags_or_fields_is_refused(comm, mpi_tmp_path):
     import dolfinx
-
     from textile_fenicsx.volume_files import read_volume
 
     msh = dolfinx.mesh.create_unit_cube(comm, 2, 2, 2)

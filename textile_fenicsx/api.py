@@ -10,21 +10,28 @@ Every call is collective under MPI (run the script with mpirun); progress goes t
 `textile_fenicsx` logger (`tfx.show_progress()` prints it from rank 0).
 """
 
+from __future__ import annotations
+
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from textile_fenicsx.pipeline import Run
+    from textile_fenicsx.textile import Textile
 
 __all__ = ["build", "read", "show_progress", "solve"]
 
 
-def read(path) -> "Textile":  # noqa: F821
+def read(path) -> Textile:
     """A textile model from a file: TexGen .tg3, or our .toml / .json (config.py documents them)."""
     from textile_fenicsx.config import load_model
 
     return load_model(Path(path))
 
 
-def build(name: str, **sizes) -> "Textile":  # noqa: F821
+def build(name: str, **sizes) -> Textile:
     """An idealised unit cell from a builder: plain, twill, satin, crowfoot_satin, basket (2D weaves:
     spacing, width, height, thickness [mm], ...) or orthogonal (3D; weaves.py lists the options)."""
     from textile_fenicsx.weaves import build as _build
@@ -33,7 +40,7 @@ def build(name: str, **sizes) -> "Textile":  # noqa: F821
 
 
 def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, int] | None = None,
-          free_edges: bool = False, comm=None, **settings) -> "Run":  # noqa: F821
+          free_edges: bool = False, comm=None, **settings) -> Run:
     """Correct a textile: its projected mesh at element size `seed` [mm], the plates' contact
     solve (`method` "exact" or the paper's "penalty"), the corrected textile and, on first use of
     `run.metrics`, its check. `repeat=(nx, ny)`: a coupon of nx x ny cells (with free edges if

@@ -33,6 +33,7 @@ errors naming the key, so a typo never passes silently.
 import json
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -48,7 +49,7 @@ SECTION_TYPES = {"ellipse": Ellipse, "lenticular": Lenticular, "power_ellipse": 
                  "polygon": Polygon}
 
 
-def _keys(table, where: str, allowed: set, required: set = frozenset()):
+def _keys(table, where: str, allowed: set, required: set | frozenset = frozenset()):
     if not isinstance(table, dict):
         raise FormatError(f"{where}: expected a table, got {type(table).__name__}")
     unknown = set(table) - allowed
@@ -113,6 +114,7 @@ def yarn_from_dict(d, where: str) -> Yarn:
     if len(given) != 1:
         raise FormatError(f"{where}: give exactly one of section, node_sections, position_sections")
     ramped, polar = bool(d.get("ramped", False)), bool(d.get("polar", False))
+    section: ConstantSection | NodeSections | PositionSections
     if "section" in d:
         section = ConstantSection(section_from_dict(d["section"], f"{where}.section"))
     elif "node_sections" in d:
@@ -144,7 +146,7 @@ def yarn_from_dict(d, where: str) -> Yarn:
             raise
         except TextileError as e:
             raise FormatError(f"{where}.position_sections: {e}") from None
-    opt = {}
+    opt: dict[str, Any] = {}
     for key, tail in (("tangents", (3,)), ("ups", (3,)), ("repeats", (3,)), ("angles", ())):
         if key in d:
             opt[key] = _array(d[key], f"{where}.{key}", tail)
@@ -232,7 +234,8 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     c = d["cell"]
     _keys(c, f"{where}.cell", {"lx", "ly", "x0", "y0", "z_range", "periodic"}, {"lx", "ly"})
     try:
-        cell = Cell(**{k: (tuple(v) if k == "z_range" else v) for k, v in c.items()})
+        given: dict[str, Any] = {k: (tuple(v) if k == "z_range" else v) for k, v in c.items()}
+        cell = Cell(**given)
     except (TextileError, TypeError, OverflowError) as e:
         raise FormatError(f"{where}.cell: {e}") from None
     if not isinstance(d["yarns"], list) or not d["yarns"]:
@@ -259,7 +262,7 @@ def _give_fibres(textile: Textile, fibres) -> None:
 
 def textile_to_dict(t: Textile) -> dict:
     c = t.cell
-    cell = {"lx": c.lx, "ly": c.ly, "x0": c.x0, "y0": c.y0}
+    cell: dict[str, Any] = {"lx": c.lx, "ly": c.ly, "x0": c.x0, "y0": c.y0}
     if c.z_range is not None:
         cell["z_range"] = list(c.z_range)
     if not c.periodic:

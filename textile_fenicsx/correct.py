@@ -2,10 +2,11 @@
 
 For each yarn, at stations along its centreline: the centreline point moves by w at its in-plane
 position, and every point of the section moves by w at its own in-plane position (on steep stretches
-only its across-fibre offset counts), so sections bend and twist with the mid-surface. The section is then laid in the plane normal to the new path: its
-across-fibre coordinate is kept, its height coordinate gets the shift times the vertical part of the
-new up vector, and where the path steepens the section thins by new_up_z / old_up_z, which keeps
-the vertical thickness the plates kept. Where the path flattens (a binder's steep stretch smoothed)
+only its across-fibre offset counts), so sections bend and twist with the mid-surface. The section
+is then laid in the plane normal to the new path: its across-fibre coordinate is kept, its height
+coordinate gets the shift times the vertical part of the new up vector, and where the path
+steepens the section thins by new_up_z / old_up_z, which keeps the vertical thickness the plates
+kept. Where the path flattens (a binder's steep stretch smoothed)
 the section keeps its own thickness: moving the points vertically and projecting them on the new
 plane, the literal reading of DESIGN.md, collapses sections there (they lay along the old path).
 The corrected yarn is a periodic cubic through the moved stations with one polygon section per
@@ -110,7 +111,8 @@ class _Crowns:
         for k, (_, w, _) in enumerate(self.pieces):
             on = owner == k
             if np.any(on):
-                out[on] = evaluate(w, _wrap(xy[on].reshape(-1, 2), self.cell), extrapolate=True).reshape(-1, xy.shape[1])
+                out[on] = evaluate(w, _wrap(xy[on].reshape(-1, 2), self.cell),
+                                   extrapolate=True).reshape(-1, xy.shape[1])
             else:
                 evaluate(w, np.zeros((0, 2)), extrapolate=True)  # collective
         return out

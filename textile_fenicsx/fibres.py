@@ -6,8 +6,8 @@ them in fixed units (mm, mm^2, g/cm^3, tex); `from_tg3` converts, `tg3_attribute
 
 The fibre cross-section of a yarn, A_f [mm^2], is the first of these that its data allows (TexGen's
 own order, CYarn::GetFibreArea, checked with pytexgen 1.2.1): the fibre area given; linear density
-over fibre density (tex / (1000 rho), rho in g/cm^3); fibres per yarn x pi d^2 / 4. A yarn's intra-yarn fibre volume fraction is A_f over its section
-area.
+over fibre density (tex / (1000 rho), rho in g/cm^3); fibres per yarn x pi d^2 / 4. A yarn's
+intra-yarn fibre volume fraction is A_f over its section area.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import logging
 import math
 import re
 from dataclasses import dataclass, fields
+from typing import Any
 
 from textile_fenicsx import limits
 from textile_fenicsx.errors import FormatError, TextileError
@@ -60,7 +61,7 @@ class Fibres:
                                                                     lo, hi, unit))
 
     def __repr__(self) -> str:
-        given = ", ".join(f"{f.name}={getattr(self, f.name):g}" for f in fields(self) if getattr(self, f.name) is not None)
+        given = ", ".join(f"{name}={value:g}" for name, value in self.as_dict().items())
         return f"Fibres({given})"
 
     def fibre_area(self) -> float | None:
@@ -73,13 +74,14 @@ class Fibres:
             return self.count * math.pi * self.diameter**2 / 4
         return None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, float]:
         """The given fields by name (the model's units)."""
         return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
-# TexGen's attribute names, (value attribute, units attribute, the table of units or None for a count)
-TG3_ATTRIBUTES = {
+# TexGen's attribute names: (value attribute, units attribute, (the model's unit, the table of units,
+# the power of length) or None for a count)
+TG3_ATTRIBUTES: dict[str, tuple[str, str, tuple[str, dict[str, float], int]] | tuple[str, None, None]] = {
     "count": ("FibresPerYarn", None, None),
     "diameter": ("FibreDiameterValue", "FibreDiameterUnits", ("mm", _LENGTH_MM, 1)),
     "area": ("FibreAreaValue", "FibreAreaUnits", ("mm^2", _LENGTH_MM, 2)),
@@ -88,24 +90,26 @@ TG3_ATTRIBUTES = {
 }
 
 
-def _factor(unit: str, table: dict, power: int, where: str) -> float:
+def _factor(unit: str, table: dict[str, float], power: int, where: str) -> float:
     """The factor that takes a value in `unit` to the model's unit; a FormatError naming an unknown one."""
     text = unit.strip().replace(" ", "")
     if power == 2:
         match = re.fullmatch(r"(.+?)(\^2|2|²)", text)
         if match and match.group(1) in table:
             return table[match.group(1)] ** 2
-    elif text in table or text.lower() in table:
-        return table.get(text, table.get(text.lower()))
+    else:
+        for key in (text, text.lower()):
+            if key in table:
+                return table[key]
     known = ", ".join(f"{u}^2" if power == 2 else u for u in table)
     raise FormatError(f"{where}: unknown unit {unit!r} (known: {known})")
 
 
-def from_tg3(el, where: str) -> Fibres | None:
+def from_tg3(el: Any, where: str) -> Fibres | None:
     """The fibre data of a TexGen <Yarn> or <Textile> element, converted to the model's units; None
     when it has none. A value TexGen marks as unset (0, or a unit-less value of a dimensioned
     quantity) is left out."""
-    values = {}
+    values: dict[str, float] = {}
     for name, (value_attr, units_attr, unit) in TG3_ATTRIBUTES.items():
         text = el.get(value_attr)
         if text is None:
@@ -118,8 +122,8 @@ def from_tg3(el, where: str) -> Fibres | None:
             raise FormatError(f"{where}: attribute {value_attr}={text!r} is not finite")
         if value <= 0:  # TexGen writes 0 for "not given"
             continue
-        if unit is not None:
-            model_unit, table, power = unit
+        if unit is not None and units_attr is not None:
+            _, table, power = unit
             given = el.get(units_attr)
             if given is None:
                 raise FormatError(f"{where}: {value_attr}={text} has no {units_attr}")
@@ -138,14 +142,14 @@ def tg3_attributes(fibres: Fibres) -> dict[str, str]:
     out = {}
     for name, value in fibres.as_dict().items():
         value_attr, units_attr, unit = TG3_ATTRIBUTES[name]
-        out[value_attr] = repr(float(value)) if unit is not None else repr(int(value)) if float(value).is_integer() \
-            else repr(float(value))
-        if unit is not None:
+        whole = unit is None and float(value).is_integer()
+        out[value_attr] = repr(int(value)) if whole else repr(float(value))
+        if unit is not None and units_attr is not None:
             out[units_attr] = unit[0]
     return out
 
 
-def from_dict(d, where: str) -> Fibres:
+def from_dict(d: Any, where: str) -> Fibres:
     """Fibre data from a TOML/JSON table: count, diameter [mm], area [mm^2], density [g/cm^3],
     linear_density [tex]."""
     if not isinstance(d, dict):

@@ -58,6 +58,8 @@ class Painter:
                 self._log.close()
             shutil.rmtree(self.folder, ignore_errors=True)
             raise
+        assert self._child.stdin is not None and self._child.stdout is not None  # both are pipes
+        self._stdin, self._stdout = self._child.stdin, self._child.stdout
         self._pending: dict[str, str] = {}  # the child's file -> the figure's file name
         self.asked: set[str] = set()  # file names of every figure asked for
         self._count = 0
@@ -83,8 +85,8 @@ class Painter:
             pickle.dump(jobs, f, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(job.with_suffix(".part"), job)
         try:
-            self._child.stdin.write(job.name + "\n")
-            self._child.stdin.flush()
+            self._stdin.write(job.name + "\n")
+            self._stdin.flush()
         except (BrokenPipeError, OSError):
             pass  # the child has ended: collect reports why
 
@@ -93,7 +95,7 @@ class Painter:
         OSError naming the first that could not be drawn (the child's reason in the message)."""
         done, failed = [], None
         while self._pending:
-            line = self._child.stdout.readline()
+            line = self._stdout.readline()
             if not line:  # the child ended without answering
                 for file_name in self._pending.values():
                     failed = failed or (Path(folder) / file_name, f"the figure process ended ({self._reason()})")
@@ -135,7 +137,7 @@ class Painter:
             except (ProcessLookupError, PermissionError):
                 pass
         self._child.wait()
-        self._child.stdout.close()
+        self._stdout.close()
         self._log.close()
         shutil.rmtree(self.folder, ignore_errors=True)
 
@@ -151,10 +153,10 @@ def _serve(folder: Path) -> None:
     (on the stdout it was started with; anything the libraries print goes to stderr, the log)."""
     answers = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)
-    from textile_fenicsx import plotting
-
     import matplotlib  # noqa: F401 (imported before the first job, while the run is busy)
     import pyvista  # noqa: F401
+
+    from textile_fenicsx import plotting
 
     with plotting.offscreen():
         for line in sys.stdin:

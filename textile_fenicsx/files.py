@@ -62,6 +62,12 @@ def atomic_path(path):
         raise
 
 
+def _collective(error: Exception) -> Exception:
+    """The error, marked as raised on every rank at the same place (cli._fail reports it once)."""
+    setattr(error, "collective", True)  # noqa: B010 (an attribute OSError does not declare)
+    return error
+
+
 def _remove_stale(out: Path, every: bool = False) -> None:
     """Remove temporary folders of earlier runs into `out` whose process is gone (a run killed
     mid-write, or ended by MPI_Abort from another rank, cannot clean up after itself); `every`:
@@ -153,8 +159,7 @@ def output_lock(out, comm=None):
     if comm is not None:
         error = comm.bcast(error, root=0)
     if error is not None:
-        error.collective = True  # every rank raises it here
-        raise error
+        raise _collective(error)  # every rank raises it here
     try:
         yield
     finally:
@@ -224,8 +229,7 @@ def claim_output(out, inputs=(), names=(), force: bool = False, comm=None):
         if comm is not None:
             error = comm.bcast(error, root=0)
         if error is not None:
-            error.collective = True  # every rank raises it here
-            raise error
+            raise _collective(error)  # every rank raises it here
 
     def parent():
         check_output(out, inputs, names, force)
@@ -234,12 +238,16 @@ def claim_output(out, inputs=(), names=(), force: bool = False, comm=None):
 
     collective(parent)
     with output_lock(out, comm):
-        collective(lambda: (_check_writable(out), _remove_stale(out, every=True)))
+        def check_and_clean():
+            _check_writable(out)
+            _remove_stale(out, every=True)
+
+        collective(check_and_clean)
         yield
 
 
 @contextlib.contextmanager
-def staged_folder(out, comm=None, remove: tuple = ()):
+def staged_folder(out, comm=None, remove: tuple | list = ()):
     """Yield a temporary folder beside `out`; when the block succeeds on every rank its files move
     into `out` (created if needed; same-named files and folders are replaced, others kept),
     otherwise nothing appears. Collective when given a communicator: rank 0 owns the folder,
@@ -268,20 +276,20 @@ def staged_folder(out, comm=None, remove: tuple = ()):
         if comm is not None:
             tmp, error = comm.bcast((tmp, error), root=0)
         if error is not None:  # every rank learns it: none waits for the others
-            error.collective = True
-            raise error
-        tmp = Path(tmp)
+            raise _collective(error)
+        assert tmp is not None
+        folder = Path(tmp)
         try:
             try:
-                yield tmp
+                yield folder
             except OSError as e:  # name the file as it would have been in `out`, not in the temporary folder
-                inner = _inside(Path(e.filename), tmp) if isinstance(e.filename, str) else None
+                inner = _inside(Path(e.filename), folder) if isinstance(e.filename, str) else None
                 if inner is not None:
                     raise OSError(e.errno, e.strerror, str(out / inner)) from e
                 raise
         except BaseException:
             if rank == 0:
-                shutil.rmtree(tmp, ignore_errors=True)
+                shutil.rmtree(folder, ignore_errors=True)
             raise
         if comm is not None:
             comm.barrier()  # every rank has written its part
@@ -294,9 +302,9 @@ def staged_folder(out, comm=None, remove: tuple = ()):
                         shutil.rmtree(old)
                     else:
                         old.unlink(missing_ok=True)
-                for f in sorted(tmp.iterdir()):
+                for f in sorted(folder.iterdir()):
                     target = out / f.name
                     if target.is_dir() and not target.is_symlink():  # a folder of an earlier run
                         shutil.rmtree(target)
                     os.replace(f, target)
-            shutil.rmtree(tmp, ignore_errors=True)
+            shutil.rmtree(folder, ignore_errors=True)

@@ -12,6 +12,7 @@ clipped to the cell's z range when it has one. Then:
 """
 
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -73,7 +74,7 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
     per_yarn = np.bincount(col.yarn, weights=top - bot, minlength=n_yarns) * dA
     depth = coverage_depth(len(xy), col.point, bot, top)
 
-    pairs = {}  # (a, b) -> (volume, max depth, where)
+    pairs: dict[tuple[int, int], tuple] = {}  # (a, b) -> (volume, max depth, where)
     # rows are sorted by point: pair every row with the later rows of the same point
     for shift in range(1, max(2, int(np.bincount(col.point).max()) if len(col.point) else 1)):
         a, b = np.arange(len(col.point) - shift), np.arange(shift, len(col.point))
@@ -94,7 +95,7 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
                            at0 if d0 >= o[k] else [float(xy[pt[k], 0]), float(xy[pt[k], 1])])
 
     deepest = int(np.argmax(depth)) if len(depth) else 0
-    local = {"volume": float(depth.sum() * dA), "max_depth": float(depth.max()) if len(depth) else 0.0,
+    local: dict[str, Any] = {"volume": float(depth.sum() * dA), "max_depth": float(depth.max()) if len(depth) else 0.0,
              "at": xy[deepest].tolist() if len(depth) else None,
              "z_lo": float(bot.min()) if len(bot) else np.inf, "z_hi": float(top.max()) if len(top) else -np.inf,
              "odd": col.odd}
@@ -102,7 +103,7 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
         from mpi4py import MPI
 
         per_yarn = comm.allreduce(per_yarn, op=MPI.SUM)
-        merged = {}
+        merged: dict[tuple[int, int], tuple] = {}
         for part in comm.allgather(pairs):
             for k, (v, d, at) in part.items():
                 v0, d0, at0 = merged.get(k, (0.0, 0.0, None))

@@ -34,8 +34,8 @@ log = logging.getLogger(__name__)
 
 
 RESULT_NAMES = ("corrected.tg3", "corrected.json", "rejected.tg3", "rejected.json", "initial.json", "metrics.json",
-                "fields", "surfaces_before.vtu", "surfaces_before.stl", "surfaces_after.vtu", "surfaces_after.stl", "view_before.png",
-                "view_after.png", "cross_sections.png")
+                "fields", "surfaces_before.vtu", "surfaces_before.stl", "surfaces_after.vtu", "surfaces_after.stl",
+                "view_before.png", "view_after.png", "cross_sections.png")
 FAILED_NAMES = ("FAILED", "log.json")
 
 
@@ -63,7 +63,7 @@ def cut_lines(textile) -> list:
 
     y0 = textile.yarns[0]
     a, b = along(0)
-    lines = [("along yarn 0", a, b)]
+    lines = [(f"along {y0.name}", a, b)]
     if abs(y0.period[0]) >= abs(y0.period[1]):
         centre = a[1]
         others = sorted(float(np.mean(y.nodes[:-1, 1])) for y in textile.yarns[1:]
@@ -83,7 +83,10 @@ def metrics_document(run) -> dict:
     m = run.metrics
     before, after = m["before"], m["after"] or {}
     summary = run.summary()
-    pick = (lambda key: {"before": before[key], "after": after.get(key)})
+
+    def pick(key):
+        return {"before": before[key], "after": after.get(key)}
+
     return {
         "verdict": m["verdict"],
         "interpenetration": {k: (None if v is None else {f: v["interpenetration"][f] for f in

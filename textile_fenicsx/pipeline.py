@@ -13,12 +13,13 @@ import numpy as np
 from mpi4py import MPI
 
 from textile_fenicsx.correct import CorrectionOptions, corrected_textile
-from textile_fenicsx.legs import STEEP, leg_loads, split_steep
-from textile_fenicsx.slopes import slope_thickness
-from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh, release_freed_memory
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.legs import STEEP, leg_loads, split_steep
 from textile_fenicsx.limits import check_length
+from textile_fenicsx.memory import release_freed_memory
+from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
+from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.textile import Textile
 
@@ -61,7 +62,7 @@ class Settings:
         penalty method)."""
         if self.mould == "auto":
             return textile.thickness if self.solver.method == "exact" else None
-        return self.mould
+        return None if self.mould is None else float(self.mould)  # a number (__post_init__ checked it)
 
 
 @dataclass
@@ -77,6 +78,28 @@ class Run:
     times: dict = field(default_factory=dict)
     mould: Mould | None = None  # the mould's platens, where it closed on the fabric
     _metrics: dict | None = field(default=None, repr=False)
+
+    def __repr__(self) -> str:
+        sol = self.solution
+        state = f"converged in {sol.iterations} Newton steps" if sol.converged else f"not converged ({sol.reason})"
+        dofs = sum(y.V.dofmap.index_map.size_global for y in self.midsurfaces.yarns)
+        check = "check not measured yet" if self._metrics is None else \
+            ("check passed" if self.verdict["passed"] else "check failed")
+        return (f"<Run {self.textile.name!r}: {state}, {dofs} dofs, seed {self.settings.mesh.seed:g} mm, "
+                f"{self.times.get('total', 0.0):.1f} s; {check}>")
+
+    def summary_line(self) -> str:
+        """One line for people: the check's verdict, interpenetration and thickness before -> after,
+        the size and the time of the run (collective: measures the metrics if not yet done)."""
+        m = self.metrics
+        before, after = m["before"], m["after"] or {}
+        check = "check passed" if m["verdict"]["passed"] else "check FAILED"
+        volume = (f"interpenetration {before['interpenetration']['volume']:.3g} -> "
+                  f"{after['interpenetration']['volume']:.3g} mm^3") if after else "no corrected model"
+        thickness = f", thickness {before['thickness']:.3f} -> {after['thickness']:.3f} mm" if after else ""
+        s = self.summary()
+        return (f"{self.textile.name}: {check}; {volume}{thickness}; {s['dofs']} dofs, {s['iterations']} Newton "
+                f"steps, {self.times.get('total', 0.0):.1f} s")
 
     @property
     def comm(self) -> MPI.Comm:

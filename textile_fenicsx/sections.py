@@ -154,12 +154,12 @@ class Polygon(Section):
         object.__setattr__(self, "vertices", tuple(map(tuple, v)))
 
     @property
-    def width(self):
+    def width(self) -> float:  # type: ignore[override]  # derived from the vertices, not a field
         v = np.asarray(self.vertices)
         return float(np.ptp(v[:, 0]))
 
     @property
-    def height(self):
+    def height(self) -> float:  # type: ignore[override]  # derived from the vertices, not a field
         v = np.asarray(self.vertices)
         return float(np.ptp(v[:, 1]))
 

@@ -180,11 +180,11 @@ def _caps(pts: np.ndarray, edges: np.ndarray, normal: np.ndarray) -> np.ndarray 
             if nxt == first:
                 break
             loop.append(nxt)
-        loop = np.array(loop[::-1])  # the cap runs against the cut edges
-        tris = _ear_clip(np.column_stack((pts[loop] @ e1, pts[loop] @ e2)))
+        ring = np.array(loop[::-1])  # the cap runs against the cut edges
+        tris = _ear_clip(np.column_stack((pts[ring] @ e1, pts[ring] @ e2)))
         if tris is None:
             return None
-        out.append(loop[tris])
+        out.append(ring[tris])
     return np.vstack(out)
 
 
@@ -226,5 +226,5 @@ def _ear_clip(xy: np.ndarray) -> np.ndarray | None:
                 idx = idx[:3]
                 break
     if len(idx) == 3:
-        tris.append(tuple(idx))
+        tris.append((idx[0], idx[1], idx[2]))
     return np.array(tris, np.int64)

@@ -19,8 +19,16 @@ import numpy as np
 from textile_fenicsx import fibres as fibre_data
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
-from textile_fenicsx.limits import (MAX_NODES, MAX_NODES_PER_YARN, MAX_POLYGON_POINTS, MAX_SIZE, MAX_YARNS, MIN_LENGTH,
-                                    check_file_size, check_many)
+from textile_fenicsx.limits import (
+    MAX_NODES,
+    MAX_NODES_PER_YARN,
+    MAX_POLYGON_POINTS,
+    MAX_SIZE,
+    MAX_YARNS,
+    MIN_LENGTH,
+    check_file_size,
+    check_many,
+)
 from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
@@ -84,7 +92,8 @@ def _section(el, where: str) -> Section:
             return Lenticular(_attr(el, "Width", where), _attr(el, "Height", where),
                               _attr(el, "Distortion", where, 0.0))
         if kind == "CSectionPolygon":
-            check_many(f"{where}: PolygonPoint elements", len(el.findall("PolygonPoint")), MAX_POLYGON_POINTS, FormatError)
+            check_many(f"{where}: PolygonPoint elements", len(el.findall("PolygonPoint")), MAX_POLYGON_POINTS,
+                       FormatError)
             pts = [_floats(p.get("value"), f"{where} PolygonPoint", 2) for p in el.findall("PolygonPoint")]
             return Polygon(tuple(map(tuple, pts)))
     except TextileError as e:
@@ -172,7 +181,8 @@ def _yarn(el, textile_where: str) -> Yarn:
             section=_yarn_section(ysec, len(pos), where),
             interpolation=INTERPOLATION_IN[itype],
             periodic=bool(_attr(interp, "Periodic", where, 1, int)),
-            repeats=[_floats(r.get("value"), f"{where} Repeat", 3) for r in el.findall("Repeat")],
+            repeats=np.array([_floats(r.get("value"), f"{where} Repeat", 3)
+                              for r in el.findall("Repeat")]).reshape(-1, 3),
             tangents=per_node("Tangent", np.zeros(3)),
             ups=per_node("Up", np.zeros(3)),
             angles=None if angles is None else angles[:, 0],
@@ -199,7 +209,8 @@ def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
             raise FormatError(f"{where}: repeats as the unit cell: {e}") from None
     if dom.get("type") != "CDomainPlanes":
         raise FormatError(f"{where}: unsupported domain type {dom.get('type')!r} (only CDomainPlanes)")
-    lo, hi = [None] * 3, [None] * 3
+    lo: list = [None] * 3  # plane offsets per axis, None until a plane bounds it
+    hi: list = [None] * 3
     for plane in dom.findall("Plane"):
         n = _floats(plane.get("Normal"), f"{where} Domain Plane Normal", 3)
         d = _attr(plane, "d", f"{where} Domain Plane")
@@ -266,9 +277,9 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     cell = _domain(el, yarns, where)
     try:
         woven_to = _woven_to(el, where)
-        textile = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to)
-        textile.check_size()
-        return textile
+        model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to)
+        model.check_size()
+        return model
     except FormatError:
         raise
     except TextileError as e:  # the yarns do not make a periodic textile in this domain, or too large

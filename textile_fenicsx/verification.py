@@ -93,7 +93,8 @@ def convergence_rates(h, errors):
     return np.log(e[:-1] / e[1:]) / np.log(h[:-1] / h[1:])
 
 
-def solve_fibre_jump_plate(n: int, Db1: float = 1.0, Db2: float = 0.25, comm: MPI.Comm = MPI.COMM_WORLD) -> PlateSolution:
+def solve_fibre_jump_plate(n: int, Db1: float = 1.0, Db2: float = 0.25,
+                           comm: MPI.Comm = MPI.COMM_WORLD) -> PlateSolution:
     """A clamped unit square whose fibres turn from x (x < 1/2) to y (x > 1/2) across a mesh line.
 
     With the moment M(x) = sin(pi x) the plate bends in x only: w'' = M / D(x), D = Db1 then Db2,

@@ -16,6 +16,7 @@ numbers and the worst place), and the tolerances used.
 """
 
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -129,7 +130,8 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
     comm = run.comm
     initial, corrected = run.textile, run.corrected
     before = measure(initial, tol.grid, comm)
-    out = {"before": before, "after": None, "verdict": {"passed": False, "failures": [], "tolerances": asdict(tol)}}
+    out: dict[str, Any] = {"before": before, "after": None,
+                           "verdict": {"passed": False, "failures": [], "tolerances": asdict(tol)}}
     verdict = out["verdict"]
     if corrected is None:
         verdict["failures"].append({"check": "solve", "message": run.solution.reason})
@@ -151,7 +153,8 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
         verdict["failures"].append({"check": "overlap depth", "value": pen["max_depth"], "limit": tol.depth * h_min,
                                     "at": worst["at"] if worst else None,
                                     "message": f"the corrected yarns overlap {pen['max_depth']:.4g} mm deep (limit "
-                                               f"{tol.depth * h_min:.3g} mm, {tol.depth:.0%} of the thinnest yarn){where}"})
+                                               f"{tol.depth * h_min:.3g} mm, {tol.depth:.0%} of the thinnest yarn)"
+                                               f"{where}"})
     v0, v1 = np.array(before["yarn_volume"]["per_yarn"]), np.array(after["yarn_volume"]["per_yarn"])
     change = np.where(v0 > 0, v1 / np.where(v0 > 0, v0, 1) - 1, 0.0)
     out["yarn_volume_change"] = change.tolist()
@@ -172,7 +175,7 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
                                                           f"{change[k]:+.2%}, length {length[k] - 1:+.2%})"})
     spacing = run.settings.correction.station_spacing(run.settings.mesh.seed)
     area_change = []
-    for i, (y0, y1) in enumerate(zip(initial.yarns, corrected.yarns)):
+    for i, (y0, _) in enumerate(zip(initial.yarns, corrected.yarns)):
         polys = _sections(corrected, i)
         if polys is None:
             area_change.append(0.0)

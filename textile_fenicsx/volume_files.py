@@ -16,11 +16,12 @@ import json
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import basix.ufl
 import numpy as np
 from mpi4py import MPI
 
-import basix.ufl
 import dolfinx
 from textile_fenicsx.errors import FormatError
 from textile_fenicsx.files import naming
@@ -66,10 +67,11 @@ def _fields(msh: dolfinx.mesh.Mesh, phase: np.ndarray, direction: np.ndarray, vf
 
 def to_dolfinx(vm: VolumeMesh | None, comm: MPI.Comm = MPI.COMM_WORLD) -> VolumeFields:
     """The volume mesh (given on rank 0; None elsewhere) as a distributed DOLFINx mesh with its fields."""
-    nodes = comm.bcast(vm.cells.shape[1] if comm.rank == 0 else None, root=0)
+    nodes = comm.bcast(vm.cells.shape[1] if vm is not None else None, root=0)
     name, cell_type = _CELL[nodes]
     element = basix.ufl.element("Lagrange", name if name != "tetra" else "tetrahedron", 1, shape=(3,))
     if comm.rank == 0:
+        assert vm is not None
         cells = vm.cells[:, dolfinx.io.gmshio.cell_perm_array(cell_type, nodes)].astype(np.int64)
         x = vm.points
         arrays = (vm.phase.astype(np.int32), vm.direction, vm.yarn_vf)
@@ -89,7 +91,7 @@ def write_xdmf(fields: VolumeFields, path: Path) -> None:
         f.write_function(fields.yarn_vf)
 
 
-def read_volume(path, comm: MPI.Comm = MPI.COMM_WORLD) -> VolumeFields:
+def read_volume(path: str | Path, comm: MPI.Comm = MPI.COMM_WORLD) -> VolumeFields:
     """A volume mesh written by `write_volume` (volume.xdmf with its .h5), on any number of ranks.
     A file without the phase tags or the fields is refused (FormatError naming what is missing)."""
     path = Path(path)
@@ -141,12 +143,14 @@ def _xdmf_grids(path: Path) -> dict | Exception:
     return out
 
 
-def write_volume(vm: VolumeMesh | None, fields: VolumeFields, folder: Path, materials=None) -> list[Path]:
+def write_volume(vm: VolumeMesh | None, fields: VolumeFields, folder: Path,
+                 materials: dict[str, list[str]] | None = None) -> list[Path]:
     """Every file of the volume mesh into `folder` (collective; the mesh arrays on rank 0)."""
     comm = fields.mesh.comm
     write_xdmf(fields, folder / "volume.xdmf")
     written = [folder / "volume.xdmf", folder / "volume.h5"]
     if comm.rank == 0:
+        assert vm is not None
         write_msh(vm, folder / "volume.msh")
         write_vtu(vm, folder / "volume.vtu")
         write_inp(vm, folder / "volume.inp", materials)
@@ -166,7 +170,7 @@ def report_document(vm: VolumeMesh) -> dict:
             "units": "mm, mm^3"}
 
 
-def _meshio_mesh(vm: VolumeMesh, cell_data: dict):
+def _meshio_mesh(vm: VolumeMesh, cell_data: dict[str, list[np.ndarray]]) -> Any:
     import meshio
 
     return meshio.Mesh(vm.points, [(_CELL[vm.cells.shape[1]][0], vm.cells)], cell_data=cell_data)
@@ -196,7 +200,12 @@ def _second_axis(a: np.ndarray) -> np.ndarray:
     return b / np.linalg.norm(b, axis=1, keepdims=True)
 
 
-def write_inp(vm: VolumeMesh, path: Path, materials=None) -> None:
+def _rows(f: Any, fmt: str, table: np.ndarray) -> None:
+    """The table's rows, each formatted by fmt, on lines of the open text file f."""
+    np.savetxt(f, table, fmt=fmt)
+
+
+def write_inp(vm: VolumeMesh, path: Path, materials: dict[str, list[str]] | None = None) -> None:
     """Abaqus input: nodes, elements, an element set per phase, and per yarn element its material
     axes by a distribution (*Orientation): axis 1 the fibre direction, axis 2 normal to it.
     `materials`: {phase name: lines of a *Material block} to include; without it each section names
@@ -210,10 +219,10 @@ def write_inp(vm: VolumeMesh, path: Path, materials=None) -> None:
         f.write("*Heading\n** textile_fenicsx volume mesh (mm); phases: MATRIX, "
                 + ", ".join(f"YARN{i} = {n}" for i, n in enumerate(vm.yarn_names)) + "\n")
         f.write("*Node\n")
-        np.savetxt(f, np.column_stack((np.arange(1, len(vm.points) + 1), vm.points)), fmt="%d, %.12g, %.12g, %.12g")
+        _rows(f, "%d, %.12g, %.12g, %.12g", np.column_stack((np.arange(1, len(vm.points) + 1), vm.points)))
         f.write(f"*Element, type={etype}\n")
-        np.savetxt(f, np.column_stack((np.arange(1, len(vm.cells) + 1), vm.cells + 1)),
-                   fmt=", ".join(["%d"] * (vm.cells.shape[1] + 1)))
+        _rows(f, ", ".join(["%d"] * (vm.cells.shape[1] + 1)), np.column_stack((np.arange(1, len(vm.cells) + 1),
+                                                                                vm.cells + 1)))
         for p, name in enumerate(names):
             members = np.flatnonzero(vm.phase == p) + 1
             f.write(f"*Elset, elset={name}\n")
@@ -221,7 +230,7 @@ def write_inp(vm: VolumeMesh, path: Path, materials=None) -> None:
                 f.write(", ".join(map(str, members[k:k + 16])) + "\n")
         f.write("*Distribution Table, name=FIBRE_AXES_TABLE\ncoord3d, coord3d\n")
         f.write("*Distribution, name=FIBRE_AXES, location=ELEMENT, table=FIBRE_AXES_TABLE\n, 1., 0., 0., 0., 1., 0.\n")
-        np.savetxt(f, np.column_stack((yarn + 1, a, b)), fmt="%d, %.9g, %.9g, %.9g, %.9g, %.9g, %.9g")
+        _rows(f, "%d, %.9g, %.9g, %.9g, %.9g, %.9g, %.9g", np.column_stack((yarn + 1, a, b)))
         f.write("*Orientation, name=FIBRE_AXES, definition=COORDINATES, system=RECTANGULAR\nFIBRE_AXES\n1, 0.\n")
         for p, name in enumerate(names):
             orient = ", orientation=FIBRE_AXES" if p > 0 else ""

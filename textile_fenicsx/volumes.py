@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mpi4py import MPI
@@ -19,6 +20,9 @@ from textile_fenicsx import limits
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.meshes.volume import KINDS, VolumeMesh, cell_box
 from textile_fenicsx.textile import Textile
+
+if TYPE_CHECKING:
+    from textile_fenicsx.volume_files import VolumeFields
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +87,7 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
 
                 result = voxel_mesh(textile, box, options.size, vf)
             else:
-                from textile_fenicsx.meshes.tetra import tet_mesh
+                from textile_fenicsx.meshes.tetra import tet_mesh  # type: ignore[import-not-found]
 
                 result = tet_mesh(textile, box, options.size, vf)
         except TextileError as e:
@@ -100,14 +104,14 @@ class CellMesh:
     with its phase tags and fields, and the mesher's report (every rank)."""
 
     mesh: VolumeMesh | None
-    fields: object  # volume_files.VolumeFields
-    report: dict
+    fields: VolumeFields
+    report: dict[str, Any]
 
     def __repr__(self) -> str:
         r = self.report
         return f"CellMesh({r.get('kind')}, {r.get('elements')} elements, Vf {r.get('vf', float('nan')):.3f})"
 
-    def write(self, out, materials=None) -> Path:
+    def write(self, out: str | Path, materials: dict[str, list[str]] | None = None) -> Path:
         """The volume mesh folder (README): volume.xdmf/.h5, .msh, .vtu, .inp, mesh_report.json; it
         appears only when complete (collective)."""
         from textile_fenicsx.files import staged_folder
@@ -125,5 +129,5 @@ def mesh_cell(textile: Textile, options: VolumeOptions = VolumeOptions(),
 
     vm = volume_mesh(textile, options, comm)
     fields = to_dolfinx(vm, comm)
-    report = comm.bcast(report_document(vm) if comm.rank == 0 else None, root=0)
+    report = comm.bcast(report_document(vm) if vm is not None else None, root=0)
     return CellMesh(vm, fields, report)

@@ -18,7 +18,6 @@ from textile_fenicsx.sections import Ellipse, PowerEllipse
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, Yarn
 
-
 # --- patterns -------------------------------------------------------------------------------
 
 def plain() -> np.ndarray:
@@ -137,7 +136,7 @@ def weave2d(pattern, spacing=2.0, width=1.8, height=0.3, thickness=None, *, weft
         nodes = np.column_stack((x, np.full(n_weft, y[i]), z))
         nodes = np.vstack((nodes, nodes[0] + (Lx, 0, 0)))
         yarns.append(Yarn(nodes, ConstantSection(_section(wy[i], hy[i], power)), "bezier",
-                          repeats=[(Lx, 0, 0), (0, Ly, 0)], tangents=np.tile(flat, (n_weft + 1, 1)),
+                          repeats=np.array([(Lx, 0, 0), (0, Ly, 0)]), tangents=np.tile(flat, (n_weft + 1, 1)),
                           name=f"warp {i}"))
     along_y = np.array([0.0, 1.0, 0.0])
     for j in range(n_weft):
@@ -145,7 +144,7 @@ def weave2d(pattern, spacing=2.0, width=1.8, height=0.3, thickness=None, *, weft
         nodes = np.column_stack((np.full(n_warp, x[j]), y, z))
         nodes = np.vstack((nodes, nodes[0] + (0, Ly, 0)))
         yarns.append(Yarn(nodes, ConstantSection(_section(wx[j], hx[j], power)), "bezier",
-                          repeats=[(Lx, 0, 0), (0, Ly, 0)], tangents=np.tile(along_y, (n_warp + 1, 1)),
+                          repeats=np.array([(Lx, 0, 0), (0, Ly, 0)]), tangents=np.tile(along_y, (n_warp + 1, 1)),
                           name=f"weft {j}"))
     return Textile(Cell(Lx, Ly, z_range=(-0.05 * T, 1.05 * T)), yarns, name=name)
 
@@ -192,7 +191,7 @@ def orthogonal(n_warp_stacks: int = 2, n_weft_columns: int = 4, warp_layers: int
 
     Lx = n_weft_columns * weft_spacing
     Ly = n_warp_stacks * (warp_spacing + binder_spacing)
-    repeats = [(Lx, 0, 0), (0, Ly, 0)]
+    repeats = np.array([(Lx, 0, 0), (0, Ly, 0)])
     x = (np.arange(n_weft_columns) + 0.5) * weft_spacing
     # z levels: weft, warp, weft, ..., weft (bottom to top)
     heights = [weft_height if k % 2 == 0 else warp_height for k in range(2 * warp_layers + 1)]
@@ -214,21 +213,22 @@ def orthogonal(n_warp_stacks: int = 2, n_weft_columns: int = 4, warp_layers: int
         y_b = (s + 1) * (warp_spacing + binder_spacing) - binder_spacing / 2
         z_over, z_under = tops[-1] + binder_height / 2, -binder_height / 2
         z_hi, z_lo = centres[-1], centres[0]
-        nodes, tangents = [], []
+        path: list[tuple] = []
+        tangents: list[np.ndarray] = []
         for j in range(n_weft_columns):
             over = B[s, j] == 1
-            nodes.append((x[j], y_b, z_over if over else z_under))
+            path.append((x[j], y_b, z_over if over else z_under))
             tangents.append(along_x)
             nxt = B[s, (j + 1) % n_weft_columns] == 1
             if nxt != over:  # through the thickness in the gap after column j
                 xm = x[j] + weft_spacing / 2
                 half = max(gap - binder_height, 0.0) / 2
                 zs = (z_hi, z_lo) if over else (z_lo, z_hi)
-                nodes += [(xm - half, y_b, zs[0]), (xm + half, y_b, zs[1])]
+                path += [(xm - half, y_b, zs[0]), (xm + half, y_b, zs[1])]
                 tangents += [np.zeros(3), np.zeros(3)]
-        nodes.append((nodes[0][0] + Lx, y_b, nodes[0][2]))
+        path.append((path[0][0] + Lx, y_b, path[0][2]))
         tangents.append(along_x)
-        yarns.append(Yarn(np.array(nodes), ConstantSection(binder_sec), "bezier", repeats=repeats,
+        yarns.append(Yarn(np.array(path), ConstantSection(binder_sec), "bezier", repeats=repeats,
                           tangents=np.array(tangents), name=f"binder {s}"))
     for j in range(n_weft_columns):
         for layer in range(warp_layers + 1):

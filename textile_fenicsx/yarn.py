@@ -18,55 +18,11 @@ from scipy.interpolate import CubicSpline
 from textile_fenicsx import limits
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.fibres import Fibres
-from textile_fenicsx.sections import Section, blend
+from textile_fenicsx.yarn_sections import ConstantSection, NodeSections, PositionSections
+
+__all__ = ["INTERPOLATIONS", "ConstantSection", "NodeSections", "PositionSections", "Yarn"]
 
 INTERPOLATIONS = ("bezier", "cubic", "linear")
-
-
-@dataclass(frozen=True)
-class ConstantSection:
-    """The same section all along the yarn."""
-
-    section: Section
-
-    def sections(self):
-        return (self.section,)
-
-
-@dataclass(frozen=True)
-class NodeSections:
-    """One section per master node, blended point by point between nodes (TexGen InterpNode).
-    mid: sections inside segments, ((segment k, t in (0, 1), section), ...), as TexGen's refine
-    writes them (MidNodeSection): within segment k the blend runs node k -> mid at t -> node k + 1."""
-
-    at_nodes: tuple
-    ramped: bool = False
-    polar: bool = False
-    mid: tuple = ()
-
-    def sections(self):
-        return tuple(self.at_nodes) + tuple(m[2] for m in self.mid)
-
-
-@dataclass(frozen=True)
-class PositionSections:
-    """Sections at fractions of the yarn's length in [0, 1), blended between (TexGen InterpPosition)."""
-
-    positions: tuple
-    at_positions: tuple
-    ramped: bool = False
-    polar: bool = False
-
-    def __post_init__(self):
-        if len(self.positions) != len(self.at_positions) or not self.positions:
-            raise TextileError("position sections need as many positions as sections, at least one")
-        limits.check_many("position sections", len(self.positions), limits.MAX_NODES_PER_YARN)
-        p = np.asarray(self.positions, float)
-        if np.any(~np.isfinite(p)) or np.any(np.diff(p) < 0):
-            raise TextileError(f"section positions must be finite and increasing, got {self.positions}")
-
-    def sections(self):
-        return tuple(self.at_positions)
 
 
 @dataclass(eq=False)
@@ -81,7 +37,7 @@ class Yarn:
     """
 
     nodes: np.ndarray
-    section: object
+    section: ConstantSection | NodeSections | PositionSections
     interpolation: str = "bezier"
     periodic: bool = True
     repeats: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -112,13 +68,14 @@ class Yarn:
         if not isinstance(self.section, (ConstantSection, NodeSections, PositionSections)):
             raise TextileError(f"{label}: section must be ConstantSection, NodeSections or PositionSections")
         if isinstance(self.section, NodeSections) and len(self.section.at_nodes) != len(self.nodes):
-            raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} master nodes")
+            raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} "
+                               "master nodes")
         if isinstance(self.section, NodeSections):
             segments = [m[0] for m in self.section.mid]
             if any(not (0 <= k < len(self.nodes) - 1 and 0 < t < 1) for k, t, _ in self.section.mid) \
                     or len(set(segments)) != len(segments):
-                raise TextileError(f"{label}: a mid-segment section needs a segment 0..{len(self.nodes) - 2} (one each) "
-                                   "and 0 < t < 1")
+                raise TextileError(f"{label}: a mid-segment section needs a segment 0..{len(self.nodes) - 2} "
+                                   "(one each) and 0 < t < 1")
         self.repeats = np.array(self.repeats, dtype=float).reshape(-1, 3)
         if not np.all(np.isfinite(self.repeats)):
             raise TextileError(f"{label}: a repeat vector is not finite")
@@ -141,6 +98,18 @@ class Yarn:
             raise TextileError(f"{label}: fibres must be fibre data (Fibres), got {self.fibres!r:.60}")
         self._spline = None
         self._node_tangents = None
+
+    def __repr__(self) -> str:
+        """One line: name, master nodes, interpolation, period, sections."""
+        shapes = sorted({type(x).__name__ for x in self.section.sections()})
+        if isinstance(self.section, ConstantSection):
+            x = self.section.section
+            sections = f"{type(x).__name__} {x.width:g} x {x.height:g} mm"
+        else:
+            sections = f"{type(self.section).__name__} ({', '.join(shapes)})"
+        p = self.period
+        path = f"period ({p[0]:g}, {p[1]:g}, {p[2]:g}) mm" if self.periodic else "not periodic"
+        return f"<Yarn {self.name!r}: {len(self.nodes)} master nodes, {self.interpolation}, {path}, {sections}>"
 
     # --- centreline -------------------------------------------------------------------------
     @property
@@ -249,36 +218,8 @@ class Yarn:
     # --- sections ---------------------------------------------------------------------------
     def section_points(self, s, n_points: int) -> np.ndarray:
         """Section polygons (M, n_points, 2) in (side, up) coordinates at parameters s."""
-        sec = self.section
-        s = np.asarray(s, float)
-        if isinstance(sec, ConstantSection):
-            return np.broadcast_to(sec.section.points(n_points), (len(s), n_points, 2)).copy()
-        pts = np.array([x.points(n_points) for x in sec.sections()])
-        if isinstance(sec, NodeSections):
-            i, t = self._segment(s)
-            out = blend(pts[i], pts[i + 1], t, sec.ramped, sec.polar)
-            for m, (k, tm, _) in enumerate(sec.mid):  # node k -> mid -> node k + 1 within segment k
-                mid = pts[len(sec.at_nodes) + m]
-                first = (i == k) & (t <= tm)
-                second = (i == k) & (t > tm)
-                if np.any(first):
-                    out[first] = blend(pts[k][None], mid[None], t[first] / tm, sec.ramped, sec.polar)
-                if np.any(second):
-                    out[second] = blend(mid[None], pts[k + 1][None], (t[second] - tm) / (1 - tm), sec.ramped,
-                                        sec.polar)
-            return out
-        # Positions are fractions of the yarn's length measured along straight segments (TexGen).
         i, t = self._segment(s)
-        seg = np.linalg.norm(np.diff(self.nodes, axis=0), axis=1)
-        cum = np.concatenate(([0.0], np.cumsum(seg)))
-        frac = (cum[i] + t * seg[i]) / cum[-1]
-        pos = np.asarray(sec.positions, float)
-        ext_pos = np.concatenate(([pos[-1] - 1], pos, [pos[0] + 1]))
-        ext_pts = np.concatenate((pts[-1:], pts, pts[:1]))
-        j = np.clip(np.searchsorted(ext_pos, frac, side="right") - 1, 0, len(ext_pos) - 2)
-        span = ext_pos[j + 1] - ext_pos[j]
-        u = np.where(span > 0, (frac - ext_pos[j]) / np.where(span > 0, span, 1), 0.0)
-        return blend(ext_pts[j], ext_pts[j + 1], u, sec.ramped, sec.polar)
+        return self.section.points_along(self.nodes, i, t, n_points)
 
     def tube(self, spacing: float, n_points: int, per_segment: int = 4) -> tuple[np.ndarray, np.ndarray]:
         """The yarn's surface over its master nodes as a structured grid.

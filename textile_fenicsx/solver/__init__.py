@@ -13,15 +13,15 @@ One module per idea:
 import logging
 import time
 
+from textile_fenicsx.memory import release_freed_memory
 from textile_fenicsx.meshes.midsurface import MidSurfaces
-from textile_fenicsx.meshes.projected import release_freed_memory
 from textile_fenicsx.solver.linear import DIRECT_LDLT, DIRECT_LU, OUT_OF_CORE, SolverError, check_converged
 from textile_fenicsx.solver.newton import solve_exact, solve_penalty
 from textile_fenicsx.solver.parameters import METHODS, Mould, PlateParameters, Solution, SolverOptions
 from textile_fenicsx.solver.problem import ContactProblem
 
-__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "OUT_OF_CORE", "ContactProblem", "Mould", "PlateParameters", "Solution", "SolverError",
-           "SolverOptions", "check_converged", "solve", "solve_problem"]
+__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "OUT_OF_CORE", "ContactProblem", "Mould", "PlateParameters",
+           "Solution", "SolverError", "SolverOptions", "check_converged", "solve", "solve_problem"]
 
 log = logging.getLogger(__name__)
 

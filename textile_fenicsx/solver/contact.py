@@ -67,10 +67,11 @@ class ContactPair:
 
 
 def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters, exact: bool,
-                extra: np.ndarray = np.zeros(0, np.int64)):
+                extra: np.ndarray | None = None):
     """The pairs, and the (row, column) unknowns of T^T J T's entries in the order `jacobian_values`
     gives them, and the unknowns every pair (and `extra`: the mould's) needs (sorted: the gathered
     vector's layout)."""
+    extra = np.zeros(0, np.int64) if extra is None else extra
     yarns = ms.yarns
     scratch, cell_order = {}, {}
     pending, rows, cols = [], [], []
@@ -91,7 +92,7 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         nnz = int(M.indptr[n_owned])
         forms = PairForms(g, energy, residual, jacobian, dolfinx.fem.form(penetration_volume(g, dx)), M, nnz)
         # the overlap's dofs on u and on l (the same points)
-        du, dl = ms.contact_dofs[(u, l)][:, 0], ms.contact_dofs[(u, l)][:, 1]
+        du = ms.contact_dofs[(u, l)][:, 0]
         g0, margin = initial_gap(ms, u, l)
         parent = numbering.parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
         owner = numbering.parent_owner(yu.to_parent[du])
@@ -108,7 +109,10 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
     need = np.unique(np.concatenate([np.concatenate([p[7], p[8]]) for p in pending] + [extra.astype(np.int64)]))
     pairs = [ContactPair(u, l, du, parent, owner, g0, margin, np.searchsorted(need, cu), np.searchsorted(need, cl),
                          cells, forms) for u, l, du, parent, owner, g0, margin, cu, cl, cells, forms in pending]
-    cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
+
+    def cat(a):
+        return np.concatenate(a) if a else np.zeros(0, np.int64)
+
     return pairs, (cat(rows), cat(cols)), need
 
 

@@ -82,8 +82,9 @@ class _InteriorPoint:
     step factorises K_fixed + C^T diag(lam / s) C once and solves with it twice."""
 
     def __init__(self, problem: ContactProblem, x0=None):
-        self.problem, self.nodes, self.comm = problem, problem.nodes, problem.comm
-        nodes = self.nodes
+        nodes = problem.nodes
+        assert nodes is not None  # the exact method's problem has its constrained nodes
+        self.problem, self.nodes, self.comm = problem, nodes, problem.comm
         self.count = max(self.comm.allreduce(len(nodes.g0), op=MPI.SUM), 1)
         diag = problem.K_fixed.getDiagonal()
         dg = problem.gather(diag)
@@ -165,9 +166,9 @@ class _InteriorPoint:
         self.x.axpy(alpha, self.dx)
         self.s, self.lam = s + alpha * ds, lam + alpha * dl
         rd.destroy()
-        direction = problem.motion(self.dx)
+        motion = problem.motion(self.dx)
         return dict(iteration=it, mu=mu, max_penetration=self.max(-g), step=alpha, sigma=sigma,
-                    moved_mm=alpha * direction, direction_mm=direction)
+                    moved_mm=alpha * motion, direction_mm=motion)
 
 
 def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
@@ -213,6 +214,7 @@ def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
 def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
     """The message for contact constraints that cannot all hold, naming the worst place."""
     nodes, comm = problem.nodes, problem.comm
+    assert nodes is not None  # the exact method's
     k = int(np.argmin(g)) if len(g) else -1
     worst = (float(-g[k]), nodes.pair[k], nodes.at[k]) if k >= 0 else (-np.inf, -1, -1)
     pen, pair, at = max(comm.allgather(worst), key=lambda w: w[0])
@@ -221,7 +223,9 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
         p = problem.pairs[pair]
         y = problem.ms.yarns[p.upper]
         xy = y.V.tabulate_dof_coordinates()[p.dofs[at], :2]
-        names = [t.name for t in problem.ms.projected.textile.yarns]
+        model = problem.ms.projected.textile
+        assert model is not None  # a textile's mesh (plate_mesh's plates have none)
+        names = [t.name for t in model.yarns]
         where = (f" between {names[p.upper]} (yarn {p.upper}) above and {names[p.lower]} (yarn {p.lower}) below "
                  f"at ({xy[0]:.3f}, {xy[1]:.3f}) mm")
     where = max(comm.allgather(where), key=len)
@@ -236,6 +240,7 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
 def _ended(problem: ContactProblem, ip: _InteriorPoint, it, history, converged, reason) -> Outcome:
     """The outcome; a node is in contact where its force exceeds its gap's worth of its stiffness."""
     nodes = problem.nodes
+    assert nodes is not None  # the exact method's
     g = problem.gaps(ip.x)
     active = [np.zeros(len(gp), bool) for gp in g]
     closed = ip.lam > ip.k * ip.s
@@ -255,7 +260,8 @@ def solve_penalty(problem: ContactProblem) -> Outcome:
     g = problem.gaps(x)
     energy = problem.energy(x, g)
     scale = max(problem.b_fixed.norm(), 1e-300)
-    history, state = [], _states(g)
+    history: list[dict] = []
+    state = _states(g)
     for it in range(1, opts.max_iterations + 1):
         t0 = time.perf_counter()
         grad = problem.gradient(x, g)

@@ -7,7 +7,7 @@ import numpy as np
 import dolfinx
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.limits import MAX_ITERATIONS, check_count
-from textile_fenicsx.meshes.projected import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE
+from textile_fenicsx.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE
 from textile_fenicsx.solver.linear import DIRECT_LDLT, OUT_OF_CORE
 
 __all__ = ["METHODS", "Mould", "PlateParameters", "Solution", "SolverOptions"]
@@ -124,3 +124,8 @@ class Solution:
     reason: str
     times: dict = field(default_factory=dict)
     unknowns: object = None  # this rank's part of the unknowns vector (to start a related solve from)
+
+    def __repr__(self) -> str:
+        state = "converged" if self.converged else "not converged"
+        return (f"<Solution: {state} in {self.iterations} Newton steps, {len(self.w)} yarns, "
+                f"max penetration {self.max_penetration:.3g} mm>")

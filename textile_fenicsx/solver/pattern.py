@@ -25,7 +25,7 @@ class FixedPattern:
         self.comm, self.start, self.n_local = comm, start, n_local
         self.starts = np.array(comm.allgather(start))
         self.n_cols = comm.allreduce(n_local, op=MPI.SUM)
-        self._fixed = []  # compressed (local row, column, value) pieces
+        self._fixed: list = []  # compressed (local row, column, value) pieces; None once frozen
         self.frozen = False
 
     def add_fixed(self, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> None:
@@ -44,8 +44,9 @@ class FixedPattern:
         self.plan = self._plan(np.asarray(rows, np.int64))
         variable = self._keys(self._route(self.plan, np.asarray(rows, np.int64)) - self.start,
                               self._route(self.plan, np.asarray(cols, np.int64)))
-        fixed, fixed_values = (np.concatenate(a) for a in zip(*self._fixed)) if self._fixed else (np.zeros(0, np.int64),) * 2
-        self._fixed, self.frozen = None, True
+        empty = (np.zeros(0, np.int64),) * 2
+        fixed, fixed_values = (np.concatenate(a) for a in zip(*self._fixed)) if self._fixed else empty
+        self._fixed, self.frozen = None, True  # type: ignore[assignment]  # freed: add_fixed refuses
         keys = np.concatenate([fixed, variable])
         keys.sort()
         keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))] if len(keys) else keys

@@ -28,8 +28,15 @@ import dolfinx.fem.petsc
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import MidSurfaces
-from textile_fenicsx.solver.contact import (build_pairs, contact_nodes, gathered_unknowns, initial_gap,
-                                            jacobian_values, mould_rows, residual_values)
+from textile_fenicsx.solver.contact import (
+    build_pairs,
+    contact_nodes,
+    gathered_unknowns,
+    initial_gap,
+    jacobian_values,
+    mould_rows,
+    residual_values,
+)
 from textile_fenicsx.solver.linear import DirectSolver, SolverError, mumps_error, negative_pivots, null_pivots
 from textile_fenicsx.solver.parameters import Mould, PlateParameters, SolverOptions
 from textile_fenicsx.solver.pattern import FixedPattern
@@ -54,6 +61,7 @@ def assemble_plates(ms: MidSurfaces, numbering: Periodicity, pattern: FixedPatte
         msh = y.mesh
         dS = ufl.Measure("dS", msh, subdomain_data=seam_facet_tags(y), subdomain_id=1)
         c = dolfinx.fem.Constant
+        assert p.Db12 is not None  # PlateParameters sets its default
         Db1, Db2, Db12 = (c(msh, float(v)) for v in (p.Db1, p.Db2, p.Db12))
         u, v = ufl.TrialFunction(y.V), ufl.TestFunction(y.V)
         a = c0ip_bending(u, v, y.d, Db1, Db2, Db12, c(msh, p.alpha), y.dx, dS) \
@@ -77,8 +85,8 @@ def assemble_plates(ms: MidSurfaces, numbering: Periodicity, pattern: FixedPatte
             F.destroy()
         indptr, cols, vals = A.getValuesCSR()
         rows = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
-        pattern.add_fixed(numbering.yarn_unknowns(y, rows), numbering.unknown(y.yarn, numbering.column_parents(y, cols)),
-                          vals)
+        pattern.add_fixed(numbering.yarn_unknowns(y, rows),
+                          numbering.unknown(y.yarn, numbering.column_parents(y, cols)), vals)
         R.append(numbering.yarn_map(y))
         R[-1].multTransposeAdd(bi, b, b)
         A.destroy()
@@ -199,12 +207,13 @@ class ContactProblem:
         xs = self.gather(x)
         return [p.gap(xs) for p in self.pairs]
 
-    def gradient(self, x: PETSc.Vec, g: list[np.ndarray]) -> PETSc.Vec:
+    def gradient(self, x: PETSc.Vec, g: list[np.ndarray] | None) -> PETSc.Vec:
         """K_fixed x - b_fixed, plus the contact residual T^T dE_c/dg at gaps g (penalty)."""
         r = self.b_fixed.duplicate()
         self.K_fixed.mult(x, r)
         r.axpy(-1.0, self.b_fixed)
         if not self.exact:
+            assert g is not None  # the penalty method's residual depends on the gaps
             self._add_contact(r, [residual_values(p, gp) for p, gp in zip(self.pairs, g)])
         return r
 
@@ -228,6 +237,7 @@ class ContactProblem:
         if self.exact:  # the spring is in the constant part already
             jac = [np.zeros(self._pair_entries)]
         else:
+            assert g is not None  # the penalty method's Jacobian depends on the gaps
             jac = [jacobian_values(p, gp) for p, gp in zip(self.pairs, g)]
         self.pattern.fill(self.K, self._variable(jac, c_nodes), pin=self.pin)
         self.K.setOption(PETSc.Mat.Option.SPD, True)  # pinned: MUMPS' SPD LDL^T (SYM = 1); new values reset it

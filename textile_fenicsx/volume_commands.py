@@ -1,14 +1,17 @@
-"""The commands of the volume stage: `volume-mesh` (and `solve --volume-mesh`), `homogenise`."""
+"""The commands of the volume stage: `volume-mesh` (and `solve --volume-mesh`), `homogenise`; their
+arguments are in arguments.py."""
 
 from __future__ import annotations
 
 import argparse
-import json
-from contextlib import nullcontext
 from pathlib import Path
 
-from textile_fenicsx.errors import TextileError
+from typing import TYPE_CHECKING
+
 from textile_fenicsx.files import claim_output
+
+if TYPE_CHECKING:
+    from textile_fenicsx.volumes import VolumeOptions
 
 VOLUME_DESCRIPTION = (
     "Mesh the periodic cell of a model (a corrected one, or TexGen's idealised one) as volume elements, "
@@ -32,22 +35,7 @@ def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
                    help="the cell through the thickness [mm] (default: the yarns' own extent)")
 
 
-def add_commands(commands) -> None:
-    """Add `volume-mesh` to the command line."""
-    p = commands.add_parser("volume-mesh", help="mesh a model's periodic cell with volume elements",
-                            description=VOLUME_DESCRIPTION)
-    p.add_argument("model", help="model file: .tg3, .toml or .json")
-    p.add_argument("--kind", choices=["voxel", "tet"], required=True, help="voxel hexahedra or conforming tetrahedra")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    p.add_argument("--force", action="store_true",
-                   help="allow --out to be the model's own folder (the model file itself is never replaced)")
-    add_volume_options(p)
-    p.add_argument("--memory-limit", type=float, metavar="GB",
-                   help="refuse sizes whose mesh would need more memory than this (default: what is available)")
-    p.set_defaults(run=volume_mesh_command)
-
-
-def options_from(args, kind: str, size: float):
+def options_from(args: argparse.Namespace, kind: str, size: float) -> VolumeOptions:
     """VolumeOptions from the parsed arguments (checked before any work)."""
     from textile_fenicsx.volumes import VolumeOptions
 
@@ -67,7 +55,7 @@ def summary_line(report: dict) -> str:
     return text
 
 
-def volume_mesh_command(args) -> int:
+def volume_mesh(args: argparse.Namespace) -> int:
     from mpi4py import MPI
 
     from textile_fenicsx.config import load_model

@@ -1,0 +1,60 @@
+"""The memory guard: what a run may take, checked before it is built, and freed memory given back.
+
+Every stage that builds something large (the projected mesh and its solve, a coupon, the volume
+mesh to come) estimates the bytes it will need and calls `check` before it starts, so that a seed
+too fine for the machine is refused in a second with a message that says how much it would need,
+instead of a run that swaps or is killed an hour later:
+
+    from textile_fenicsx import memory
+    memory.check(dofs * memory.BYTES_PER_DOF + ranks * memory.BYTES_PER_RANK,
+                 what="mesh seed 0.1 mm would give about 2e6 unknowns and",
+                 hint="use a larger seed", limit_gb=None)
+"""
+
+import ctypes
+import ctypes.util
+
+from textile_fenicsx.errors import TextileError
+
+__all__ = ["BYTES_PER_DOF", "BYTES_PER_DOF_OUT_OF_CORE", "BYTES_PER_RANK", "available_memory", "check",
+           "release_freed_memory"]
+
+# Memory of a plate solve per unknown [bytes], measured by `make bench` (satin coupons, summed peaks:
+# 3.3e5 dofs on 1 and 2 ranks 5.8 and 7.5 kB per dof, 1.3e6 dofs on 2 ranks 6.9 kB per dof, with
+# MUMPS' factors and the outputs), and per process.
+BYTES_PER_DOF = 8e3
+# the same with MUMPS' factors on disk (SolverOptions.out_of_core)
+BYTES_PER_DOF_OUT_OF_CORE = 6e3
+BYTES_PER_RANK = 0.3e9
+
+
+def available_memory() -> float:
+    """Memory the system can give [bytes] (Linux MemAvailable; inf where unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float("inf")
+
+
+def check(bytes_needed: float, what: str, hint: str, limit_gb: float | None = None) -> None:
+    """Raise TextileError if a stage would need more than `limit_gb` [GB] (None: the memory
+    available now). The message reads "{what} need about N GB, more than {the limit} (L GB);
+    {hint} (or --memory-limit if you know better)": `what` names the thing to be built and its
+    size, ending where "need" follows; `hint` says what to change."""
+    limit = available_memory() if limit_gb is None else limit_gb * 1e9
+    if bytes_needed > limit:
+        which = "the memory limit you gave" if limit_gb is not None else "the memory available now"
+        raise TextileError(f"{what} need about {bytes_needed / 1e9:.1f} GB, more than {which} ({limit / 1e9:.1f} GB); "
+                           f"{hint} (or --memory-limit if you know better)")
+
+
+def release_freed_memory() -> None:
+    """Return freed heap pages to the operating system (glibc), where available."""
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
