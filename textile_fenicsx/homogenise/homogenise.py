@@ -1,0 +1,203 @@
+"""Effective stiffness and conductivity of a periodic unit cell: the stage's one entry point.
+
+    result = homogenise(mesh, cell_tags, direction, yarn_vf, fibre="t300", matrix="epoxy")
+    result.C, result.constants, result.K, result.to_dict()   # stiffness.json
+
+Collective: every rank calls it with its part of the mesh. Voigt order 11, 22, 33, 23, 13, 12
+with engineering shear strains (constants.py); MPa, W/(m K), mm.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+
+import dolfinx
+from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.homogenise.cellproblem import CG_GAMG
+from textile_fenicsx.homogenise.conduction import ThermalCellProblem
+from textile_fenicsx.homogenise.constants import VOIGT_ORDER, bounds, engineering_constants
+from textile_fenicsx.homogenise.elasticity import ElasticCellProblem
+from textile_fenicsx.homogenise.fields import CellFields, yarn_fields
+from textile_fenicsx.homogenise.materials import material
+from textile_fenicsx.homogenise.periodic import Box, bounding_box
+
+__all__ = ["Homogenised", "HomogeniseOptions", "estimated_bytes", "homogenise", "homogenise_fields"]
+
+log = logging.getLogger(__name__)
+
+# Peak memory per unknown of the elastic problem (matrix, GAMG hierarchy, vectors, mesh and forms),
+# measured by bench/homogenise_bench.py (README there): P2 tetrahedra ~ 2 kB, Q2 hexahedra ~ 4 kB
+# (27 nodes per cell couple to 125: about twice the tetrahedra's matrix entries per row).
+BYTES_PER_DOF = {"tetrahedron": 2.5e3, "hexahedron": 5e3}
+BYTES_PER_RANK = 0.3e9
+
+
+@dataclass(frozen=True)
+class HomogeniseOptions:
+    """degree: of the Lagrange elements (2: P2 on tetrahedra, Q2 on hexahedra); elasticity_solver,
+    conduction_solver: PETSc options (plain dicts; CG + GAMG by default, cellproblem.CG_GAMG);
+    conduction: also the thermal problem (if the materials have conductivities); box: the periodic
+    cell (default: the mesh's bounding box over all ranks); memory_limit: GB (default: the memory
+    available now)."""
+    degree: int = 2
+    elasticity_solver: dict = field(default_factory=lambda: dict(CG_GAMG))
+    conduction_solver: dict = field(default_factory=lambda: dict(CG_GAMG))
+    conduction: bool = True
+    box: Box | None = None
+    memory_limit: float | None = None
+
+
+@dataclass
+class Homogenised:
+    """C, S = C^-1 (6 x 6, MPa and 1/MPa), engineering constants, Voigt and Reuss bounds; K (3 x 3,
+    W/(m K)) and its bounds or None; fibre and yarn volume fractions of the cell; dofs, CG
+    iterations per load case and seconds per stage."""
+    C: np.ndarray
+    S: np.ndarray
+    constants: dict
+    voigt: np.ndarray
+    reuss: np.ndarray
+    asymmetry: float
+    K: np.ndarray | None
+    K_voigt: np.ndarray | None
+    K_reuss: np.ndarray | None
+    fibre_fraction: float
+    yarn_fraction: float
+    box: Box
+    dofs: dict
+    iterations: dict
+    seconds: dict
+    ranks: int
+    materials: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready contents of stiffness.json."""
+        def matrix(a):
+            return None if a is None else np.asarray(a).tolist()
+
+        return {
+            "units": {"C": "MPa", "S": "1/MPa", "K": "W/(m K)", "lengths": "mm"},
+            "voigt_order": list(VOIGT_ORDER),
+            "shear": "engineering shear strains (gamma_ij = 2 eps_ij): sigma = C eps, eps = S sigma",
+            "C": matrix(self.C), "S": matrix(self.S),
+            "engineering_constants": {k: float(v) for k, v in self.constants.items()},
+            "bounds": {"voigt": matrix(self.voigt), "reuss": matrix(self.reuss)},
+            "asymmetry": self.asymmetry,
+            "conductivity": None if self.K is None else {
+                "K": matrix(self.K), "bounds": {"voigt": matrix(self.K_voigt), "reuss": matrix(self.K_reuss)}},
+            "fibre_volume_fraction": self.fibre_fraction, "yarn_volume_fraction": self.yarn_fraction,
+            "box": {"lo": list(self.box.lo), "hi": list(self.box.hi)},
+            "materials": self.materials, "dofs": self.dofs, "iterations": self.iterations,
+            "seconds": self.seconds, "ranks": self.ranks,
+        }
+
+
+def estimated_bytes(dofs: int, cell: str) -> float:
+    """Peak memory [bytes] of the elastic solve with `dofs` unknowns on cells of this kind."""
+    return dofs * BYTES_PER_DOF.get(cell, max(BYTES_PER_DOF.values()))
+
+
+def _check_memory(need: float, ranks: int, limit_gb: float | None) -> None:
+    """The project's memory guard (meshes.projected today; one place to repoint)."""
+    from textile_fenicsx.meshes.projected import available_memory
+
+    need += ranks * BYTES_PER_RANK
+    limit = available_memory() if limit_gb is None else limit_gb * 1e9
+    if need > limit:
+        which = "the memory limit you gave" if limit_gb is not None else "the memory available now"
+        raise TextileError(f"homogenisation would need about {need / 1e9:.1f} GB, more than {which} "
+                           f"({limit / 1e9:.1f} GB); use a coarser volume mesh")
+
+
+def homogenise(mesh, cell_tags, direction, yarn_vf, fibre, matrix,
+               options: HomogeniseOptions | None = None) -> Homogenised:
+    """Effective properties of a periodic cell whose yarns are fibre + matrix by Chamis' equations.
+
+    mesh: DOLFINx mesh of tetrahedra or hexahedra filling its box; cell_tags: MeshTags (dim 3), 0 =
+    matrix, 1 + i = yarn i; direction: DG0 vector Function, the unit fibre direction per cell
+    (ignored in the matrix); yarn_vf: DG0 Function, the intra-yarn fibre volume fraction (ignored in
+    the matrix); fibre, matrix: Materials, preset names or TOML files (materials.py).
+    """
+    t0 = time.perf_counter()
+    fibre, matrix = material(fibre), material(matrix)
+    fields = yarn_fields(mesh, cell_tags, direction, yarn_vf, fibre, matrix)
+    t_fields = time.perf_counter() - t0
+    result = homogenise_fields(fields, options)
+    result.materials = {"fibre": {"name": fibre.name, "source": fibre.source},
+                        "matrix": {"name": matrix.name, "source": matrix.source},
+                        "yarn": "Chamis, SAMPE Quarterly 15(3) 1984, at each cell's fibre volume fraction"}
+    result.seconds["properties"] = t_fields
+    result.seconds["total"] += t_fields
+    return result
+
+
+def _solve(problem_type, field_, box, solver, degree, volume, tensors, cell_volumes, comm, seconds, key):
+    problem = problem_type(field_, box, solver, degree)
+    try:
+        out = problem.fluctuation_energies()
+        seconds[f"{key}_assembly"] = problem.assembly_seconds
+        seconds[f"{key}_preconditioner"] = problem.pc_seconds
+        seconds[f"{key}_solves"] = out["seconds"]
+        dofs = problem.dofs
+    finally:
+        problem.destroy()
+    mean = np.einsum("c,cij->ij", cell_volumes, tensors)
+    comm.Allreduce(mean.copy(), mean)
+    A = (mean + out["energy"]) / volume
+    return A, dofs, out["iterations"]
+
+
+def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = None) -> Homogenised:
+    """Effective properties of the per-cell fields (fields.yarn_fields or fields.phase_fields)."""
+    options = options or HomogeniseOptions()
+    mesh = fields.D.function_space.mesh
+    comm = mesh.comm
+    start = time.perf_counter()
+    box = options.box or bounding_box(mesh)
+    volume = comm.allreduce(float(fields.volumes.sum()), op=MPI.SUM)
+    if abs(volume - box.volume) > 1e-6 * box.volume:
+        raise GeometryError(f"the mesh's volume {volume:.6g} mm^3 is not its periodic box's {box.volume:.6g} mm^3 "
+                            "(a unit cell's mesh must fill its box)")
+    cell = mesh.topology.cell_name()
+    nodes = _nodes(mesh, options.degree)
+    _check_memory(estimated_bytes(3 * nodes, cell), comm.size, options.memory_limit)
+    seconds, dofs, iterations = {}, {}, {}
+    C, dofs["elasticity"], iterations["elasticity"] = _solve(
+        ElasticCellProblem, fields.D, box, options.elasticity_solver, options.degree, volume, fields.stiffness,
+        fields.volumes, comm, seconds, "elasticity")
+    asymmetry = float(np.abs(C - C.T).max() / np.abs(C).max())
+    C = 0.5 * (C + C.T)
+    voigt, reuss = bounds(fields.stiffness, fields.volumes, comm)
+    K = K_voigt = K_reuss = None
+    if options.conduction and fields.K is not None:
+        K, dofs["conduction"], iterations["conduction"] = _solve(
+            ThermalCellProblem, fields.K, box, options.conduction_solver, options.degree, volume,
+            fields.conductivity, fields.volumes, comm, seconds, "conduction")
+        K = 0.5 * (K + K.T)
+        K_voigt, K_reuss = bounds(fields.conductivity, fields.volumes, comm)
+    fibre = comm.allreduce(float(fields.volumes @ fields.fibre_fraction), op=MPI.SUM) / volume
+    yarn = comm.allreduce(float(fields.volumes[fields.yarn].sum()), op=MPI.SUM) / volume
+    seconds["total"] = time.perf_counter() - start
+    return Homogenised(C=C, S=np.linalg.inv(C), constants=engineering_constants(C), voigt=voigt, reuss=reuss,
+                       asymmetry=asymmetry, K=K, K_voigt=K_voigt, K_reuss=K_reuss, fibre_fraction=fibre,
+                       yarn_fraction=yarn, box=box, dofs=dofs, iterations=iterations, seconds=seconds,
+                       ranks=comm.size)
+
+
+def _nodes(mesh, degree: int) -> int:
+    """Lagrange nodes of this degree on the mesh (global), from its entity counts."""
+    top = mesh.topology
+    if degree == 1:
+        dims = (0,)
+    elif degree == 2:
+        dims = (0, 1) if top.cell_name() == "tetrahedron" else (0, 1, 2, 3)
+    else:
+        return top.index_map(0).size_global * degree**3
+    for d in dims:
+        top.create_entities(d)
+    return sum(top.index_map(d).size_global for d in dims)
