@@ -75,6 +75,7 @@ def test_chamis_equations_and_their_limits():
     for vf, expected in ((0.0, epoxy), (1.0, t300)):
         got = yarn_material(t300, epoxy, vf)
         np.testing.assert_allclose(stiffness(got), stiffness(expected), rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(got.conductivities(), expected.conductivities(), rtol=1e-12)
     np.testing.assert_allclose(stiffness(yarn_material(epoxy, epoxy, 0.37)), stiffness(epoxy), rtol=1e-12, atol=1e-9)
     with pytest.raises(TextileError, match="fibre volume fraction"):
         chamis(t300, epoxy, [0.5, 1.2])
