@@ -220,6 +220,7 @@ def test_a_random_two_phase_cell_lies_between_the_bounds():
     record = json.loads(json.dumps(r.to_dict()))
     assert record["voigt_order"] == ["11", "22", "33", "23", "13", "12"] and "engineering" in record["shear"]
     assert record["dofs"]["elasticity"] == 3 * 9 * 9 * 7 and record["units"]["C"] == "MPa"
+    assert record["checks"]["min_eig_C"] > 0 and record["checks"]["min_eig_voigt_minus_C"] > -1e-9
 
 
 @pytest.mark.mpi

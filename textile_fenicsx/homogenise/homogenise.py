@@ -75,6 +75,14 @@ class Homogenised:
     ranks: int
     materials: dict = field(default_factory=dict)
 
+    def checks(self) -> dict:
+        """The smallest eigenvalues of C, Voigt - C and C - Reuss over C's largest entry (positive:
+        C is positive definite and within the bounds; rounding gives ~ -1e-12) and the asymmetry."""
+        scale = float(np.abs(self.C).max())
+        return {"asymmetry": self.asymmetry, "min_eig_C": float(np.linalg.eigvalsh(self.C).min()) / scale,
+                "min_eig_voigt_minus_C": float(np.linalg.eigvalsh(self.voigt - self.C).min()) / scale,
+                "min_eig_C_minus_reuss": float(np.linalg.eigvalsh(self.C - self.reuss).min()) / scale}
+
     def to_dict(self) -> dict:
         """JSON-ready contents of stiffness.json."""
         def matrix(a):
@@ -87,7 +95,7 @@ class Homogenised:
             "C": matrix(self.C), "S": matrix(self.S),
             "engineering_constants": {k: float(v) for k, v in self.constants.items()},
             "bounds": {"voigt": matrix(self.voigt), "reuss": matrix(self.reuss)},
-            "asymmetry": self.asymmetry,
+            "checks": self.checks(),
             "conductivity": None if self.K is None else {
                 "K": matrix(self.K), "bounds": {"voigt": matrix(self.K_voigt), "reuss": matrix(self.K_reuss)}},
             "fibre_volume_fraction": self.fibre_fraction, "yarn_volume_fraction": self.yarn_fraction,
@@ -183,10 +191,16 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
     fibre = comm.allreduce(float(fields.volumes @ fields.fibre_fraction), op=MPI.SUM) / volume
     yarn = comm.allreduce(float(fields.volumes[fields.yarn].sum()), op=MPI.SUM) / volume
     seconds["total"] = time.perf_counter() - start
-    return Homogenised(C=C, S=np.linalg.inv(C), constants=engineering_constants(C), voigt=voigt, reuss=reuss,
-                       asymmetry=asymmetry, K=K, K_voigt=K_voigt, K_reuss=K_reuss, fibre_fraction=fibre,
-                       yarn_fraction=yarn, box=box, dofs=dofs, iterations=iterations, seconds=seconds,
-                       ranks=comm.size)
+    result = Homogenised(C=C, S=np.linalg.inv(C), constants=engineering_constants(C), voigt=voigt, reuss=reuss,
+                         asymmetry=asymmetry, K=K, K_voigt=K_voigt, K_reuss=K_reuss, fibre_fraction=fibre,
+                         yarn_fraction=yarn, box=box, dofs=dofs, iterations=iterations, seconds=seconds,
+                         ranks=comm.size)
+    c = result.constants
+    log.info(f"homogenised ({dofs['elasticity']} dofs, {seconds['total']:.1f} s): Ex {c['Ex']:.0f} Ey {c['Ey']:.0f} "
+             f"Ez {c['Ez']:.0f} Gxy {c['Gxy']:.0f} Gxz {c['Gxz']:.0f} Gyz {c['Gyz']:.0f} MPa, nuxy {c['nuxy']:.3f} "
+             f"nuxz {c['nuxz']:.3f} nuyz {c['nuyz']:.3f}"
+             + ("" if K is None else f"; kx {K[0, 0]:.3g} ky {K[1, 1]:.3g} kz {K[2, 2]:.3g} W/(m K)"))
+    return result
 
 
 def _nodes(mesh, degree: int) -> int:
