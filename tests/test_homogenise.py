@@ -25,6 +25,7 @@ from textile_fenicsx.homogenise import (
     yarn_material,
 )
 from textile_fenicsx.homogenise.cellproblem import CG_GAMG
+from textile_fenicsx.homogenise.homogenise import _nodes
 from textile_fenicsx.homogenise.materials import PRESETS, stiffness
 from textile_fenicsx.homogenise.periodic import bounding_box, check_one_master, periodic_constraint
 
@@ -86,6 +87,7 @@ def test_every_slave_has_one_master_off_the_plus_faces(kind):
 
     V = dolfinx.fem.functionspace(msh, basix.ufl.element("Lagrange", msh.basix_cell(), 2, shape=(3,)))
     box = bounding_box(msh)
+    assert 3 * _nodes(msh, 2) == V.dofmap.index_map.size_global * 3  # the memory estimate's count
     mpc = periodic_constraint(V, box)
     # P2/Q2 dofs on the + faces: (n+1)-grids of half-cells minus the - faces' copies
     nodes = {"hex": (7 * 5 * 5) - (6 * 4 * 4), "tet": (7 * 5 * 5) - (6 * 4 * 4)}[kind]

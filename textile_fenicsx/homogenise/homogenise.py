@@ -30,10 +30,13 @@ __all__ = ["Homogenised", "HomogeniseOptions", "estimated_bytes", "homogenise", 
 
 log = logging.getLogger(__name__)
 
-# Peak memory per unknown of the elastic problem (matrix, GAMG hierarchy, vectors, mesh and forms),
-# measured by bench/homogenise_bench.py (README there): P2 tetrahedra ~ 2 kB, Q2 hexahedra ~ 4 kB
-# (27 nodes per cell couple to 125: about twice the tetrahedra's matrix entries per row).
-BYTES_PER_DOF = {"tetrahedron": 2.5e3, "hexahedron": 5e3}
+# Peak memory per elastic unknown and rank (matrix, GAMG hierarchy, vectors, mesh, fields), from
+# bench/homogenise_bench.py (2026-11-25): serially, P2 tetrahedra 2.5 kB/dof (0.40, 0.91, 1.59 GB at
+# 100k, 300k, 584k dofs) and Q2 hexahedra 4.4 kB/dof (0.59, 1.47 GB at 100k, 300k; 27-node cells,
+# about twice the matrix entries per row); on 2 ranks the sum over ranks is 5.2 and 6.6 kB/dof
+# (GAMG's parallel setup), so the estimate scales the per-dof part with the ranks: a little over
+# what was measured on 1 and 2 ranks, untested beyond.
+BYTES_PER_DOF = {"tetrahedron": 2.6e3, "hexahedron": 4.5e3}
 BYTES_PER_RANK = 0.3e9
 
 
@@ -105,16 +108,15 @@ class Homogenised:
         }
 
 
-def estimated_bytes(dofs: int, cell: str) -> float:
-    """Peak memory [bytes] of the elastic solve with `dofs` unknowns on cells of this kind."""
-    return dofs * BYTES_PER_DOF.get(cell, max(BYTES_PER_DOF.values()))
+def estimated_bytes(dofs: int, cell: str, ranks: int = 1) -> float:
+    """Peak memory [bytes], summed over ranks, of homogenising with `dofs` elastic unknowns."""
+    return ranks * (dofs * BYTES_PER_DOF.get(cell, max(BYTES_PER_DOF.values())) + BYTES_PER_RANK)
 
 
-def _check_memory(need: float, ranks: int, limit_gb: float | None) -> None:
+def _check_memory(need: float, limit_gb: float | None) -> None:
     """The project's memory guard (meshes.projected today; one place to repoint)."""
     from textile_fenicsx.meshes.projected import available_memory
 
-    need += ranks * BYTES_PER_RANK
     limit = available_memory() if limit_gb is None else limit_gb * 1e9
     if need > limit:
         which = "the memory limit you gave" if limit_gb is not None else "the memory available now"
@@ -173,7 +175,7 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
                             "(a unit cell's mesh must fill its box)")
     cell = mesh.topology.cell_name()
     nodes = _nodes(mesh, options.degree)
-    _check_memory(estimated_bytes(3 * nodes, cell), comm.size, options.memory_limit)
+    _check_memory(estimated_bytes(3 * nodes, cell, comm.size), options.memory_limit)
     seconds, dofs, iterations = {}, {}, {}
     C, dofs["elasticity"], iterations["elasticity"] = _solve(
         ElasticCellProblem, fields.D, box, options.elasticity_solver, options.degree, volume, fields.stiffness,
