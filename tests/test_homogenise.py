@@ -18,7 +18,6 @@ from textile_fenicsx.homogenise import (
     HomogeniseOptions,
     Isotropic,
     Orthotropic,
-    TransverselyIsotropic,
     homogenise,
     homogenise_fields,
     phase_fields,

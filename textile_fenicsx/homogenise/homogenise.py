@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from mpi4py import MPI
 
-import dolfinx
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.homogenise.cellproblem import CG_GAMG
 from textile_fenicsx.homogenise.conduction import ThermalCellProblem

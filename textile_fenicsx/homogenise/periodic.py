@@ -1,11 +1,11 @@
 """Periodicity of a box cell: the node check, the multi-point constraint and the pinned point.
 
 Every dof on a + face (x = hi in any coordinate) is a slave of the dof at its image with ALL its +
-coordinates wrapped at once (matched by coordinates, coefficient 1): a point on the x+ face maps to the x- face, one on the x+ y+ edge to
-the x- y- edge, the + + + corner to the - - - corner. No master then lies on a + face, so no slave
-is another slave's master (dolfinx_mpc does not resolve such chains, DESIGN.md 12) and each slave
-has exactly one master, with coefficient 1, provided the mesh's nodes are periodic, which
-`check_node_periodicity` checks first (numpy/scipy only: no DOLFINx).
+coordinates wrapped at once (matched by location, coefficient 1): a point on the x+ face maps to
+the x- face, one on the x+ y+ edge to the x- y- edge, the + + + corner to the - - - corner. No
+master then lies on a + face, so no slave is another slave's master (dolfinx_mpc does not resolve
+such chains, DESIGN.md 12) and each slave has exactly one master, provided the mesh's nodes are
+periodic, which `check_node_periodicity` checks first (numpy/scipy only: no DOLFINx).
 """
 
 from __future__ import annotations
