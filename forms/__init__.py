@@ -12,7 +12,6 @@ from textile_fenicsx.forms.bending import (
     fibre_frame,
     moment,
 )
-
 from textile_fenicsx.forms.conduction import conduction_cell_forms, heat_flux
 from textile_fenicsx.forms.contact import contact_energy, contact_forms, penetration_volume, stiffness
 from textile_fenicsx.forms.elasticity import (

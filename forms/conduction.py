@@ -17,16 +17,18 @@ energy K_ij = 1/|Y| int (e_i + grad t_i) . K (e_j + grad t_j) dx, so that the me
 from __future__ import annotations
 
 import ufl
+from ufl import Form, Measure
+from ufl.core.expr import Expr
 
 __all__ = ["conduction_cell_forms", "heat_flux"]
 
 
-def heat_flux(K, grad_T):
+def heat_flux(K: Expr, grad_T: Expr) -> Expr:
     """q = -K grad T [W/m^2 for K in W/(m K) and grad T in K/m]."""
     return -ufl.dot(K, grad_T)
 
 
-def conduction_cell_forms(t, w, K, G, dx):
+def conduction_cell_forms(t: Expr, w: Expr, K: Expr, G: Expr, dx: Measure) -> tuple[Form, Form]:
     """(a, L) of the cell problem: a = int grad w . K grad t, L = -int grad w . K G.
 
     t, w: trial and test functions of the temperature fluctuation (scalar Lagrange); K: 3 x 3

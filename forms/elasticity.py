@@ -23,31 +23,33 @@ The effective stiffness is the energy of the total strains, C_ij = 1/|Y| int (E_
 from __future__ import annotations
 
 import ufl
+from ufl import Form, Measure
+from ufl.core.expr import Expr
 
 __all__ = ["elastic_cell_forms", "elastic_energy_density", "strain", "voigt_strain", "voigt_stress"]
 
 
-def strain(u):
+def strain(u: Expr) -> Expr:
     """Small strain tensor eps(u) = sym grad u."""
     return ufl.sym(ufl.grad(u))
 
 
-def voigt_strain(eps):
+def voigt_strain(eps: Expr) -> Expr:
     """Engineering Voigt vector (e11, e22, e33, 2 e23, 2 e13, 2 e12) of a 3 x 3 strain tensor."""
     return ufl.as_vector([eps[0, 0], eps[1, 1], eps[2, 2], 2 * eps[1, 2], 2 * eps[0, 2], 2 * eps[0, 1]])
 
 
-def voigt_stress(D, eps_v):
+def voigt_stress(D: Expr, eps_v: Expr) -> Expr:
     """Voigt stress sig_v = D eps_v [MPa] (eps_v in the order of `voigt_strain`)."""
     return ufl.dot(D, eps_v)
 
 
-def elastic_energy_density(D, eps_v):
+def elastic_energy_density(D: Expr, eps_v: Expr) -> Expr:
     """psi = 1/2 eps_v . D eps_v [MPa = mJ/mm^3]."""
     return 0.5 * ufl.dot(eps_v, voigt_stress(D, eps_v))
 
 
-def elastic_cell_forms(v, w, D, E, dx):
+def elastic_cell_forms(v: Expr, w: Expr, D: Expr, E: Expr, dx: Measure) -> tuple[Form, Form]:
     """(a, L) of the cell problem: a = int eps_v(w) . D eps_v(v), L = -int eps_v(w) . D E.
 
     v, w: trial and test functions of the fluctuation (vector Lagrange); D: 6 x 6 stiffness

@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 from mpi4py import MPI
+from test_materials import PATCH, rotation, tensor_rotation
 
 import dolfinx
 import dolfinx.fem
-from test_materials import PATCH, rotation, tensor_rotation
 from textile_fenicsx.errors import FormatError, GeometryError, SolverError, TextileError
 from textile_fenicsx.homogenise import (
     HomogeniseOptions,

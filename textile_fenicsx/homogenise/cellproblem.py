@@ -22,12 +22,12 @@ import itertools
 import logging
 import time
 
+import dolfinx_mpc
 import numpy as np
 from petsc4py import PETSc
 
 import dolfinx
 import dolfinx.fem.petsc
-import dolfinx_mpc
 from textile_fenicsx.errors import SolverError
 from textile_fenicsx.homogenise.periodic import Box, periodic_constraint, pin
 
@@ -72,7 +72,7 @@ class CellProblem:
 
     def __init__(self, V, a, L, load, box: Box, options: dict, name: str, near_null=None):
         self.name, self.load, self.V = name, load, V
-        self._objects = []
+        self._objects: list = []
         try:
             t0 = time.perf_counter()
             self.mpc = periodic_constraint(V, box)

@@ -7,8 +7,8 @@ constants.frames(a) of its fibre direction a (a DG0 vector field; ignored in the
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 import ufl
@@ -127,8 +127,9 @@ def yarn_fields(mesh, cell_tags, direction, yarn_vf, fibre, matrix) -> CellField
     C[yarn] = rotate_stiffness(orthotropic_stiffness(p["E1"], p["E2"], p["E2"], p["G12"], p["G12"], p["G23"],
                                                      p["nu12"], p["nu12"], nu23), Q)
     K = None
-    if conductivity(matrix) is not None and p["k1"] is not None:
-        K = np.broadcast_to(conductivity(matrix), (n, 3, 3)).copy()
+    km = conductivity(matrix)
+    if km is not None and p["k1"] is not None:
+        K = np.broadcast_to(km, (n, 3, 3)).copy()
         local = np.zeros((len(Q), 3, 3))
         local[:, 0, 0], local[:, 1, 1], local[:, 2, 2] = p["k1"], p["k2"], p["k2"]
         K[yarn] = rotate_conductivity(local, Q)
@@ -150,11 +151,12 @@ def phase_fields(mesh, cell_tags, direction, phases: Mapping[int, Material], yar
     Q = frames(a)
     C = np.zeros((n, 6, 6))  # untagged ghosts: their owners set them (scatter_forward)
     K = np.zeros((n, 3, 3)) if all(conductivity(material(m)) is not None for m in phases.values()) else None
-    for tag, m in phases.items():
+    for tag, spec in phases.items():
         here = tags == tag
-        m = material(m)
+        m = material(spec)
         C[here] = rotate_stiffness(stiffness(m), Q[here]) if tag > 0 else stiffness(m)
-        if K is not None:
-            K[here] = rotate_conductivity(conductivity(m), Q[here]) if tag > 0 else conductivity(m)
+        k = conductivity(m)
+        if K is not None and k is not None:
+            K[here] = rotate_conductivity(k, Q[here]) if tag > 0 else k
     vf = np.zeros(n) if yarn_vf is None else np.where(yarn, _cell_values(yarn_vf, n)[:, 0], 0.0)
     return _assemble(mesh, C, K, vf, yarn)

@@ -175,7 +175,9 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
     cell = mesh.topology.cell_name()
     nodes = _nodes(mesh, options.degree)
     _check_memory(estimated_bytes(3 * nodes, cell, comm.size), options.memory_limit)
-    seconds, dofs, iterations = {}, {}, {}
+    seconds: dict = {}
+    dofs: dict = {}
+    iterations: dict = {}
     C, dofs["elasticity"], iterations["elasticity"] = _solve(
         ElasticCellProblem, fields.D, box, options.elasticity_solver, options.degree, volume, fields.stiffness,
         fields.volumes, comm, seconds, "elasticity")
@@ -183,7 +185,7 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
     C = 0.5 * (C + C.T)
     voigt, reuss = bounds(fields.stiffness, fields.volumes, comm)
     K = K_voigt = K_reuss = None
-    if options.conduction and fields.K is not None:
+    if options.conduction and fields.K is not None and fields.conductivity is not None:
         K, dofs["conduction"], iterations["conduction"] = _solve(
             ThermalCellProblem, fields.K, box, options.conduction_solver, options.degree, volume,
             fields.conductivity, fields.volumes, comm, seconds, "conduction")
@@ -207,6 +209,7 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
 def _nodes(mesh, degree: int) -> int:
     """Lagrange nodes of this degree on the mesh (global), from its entity counts."""
     top = mesh.topology
+    dims: tuple[int, ...]
     if degree == 1:
         dims = (0,)
     elif degree == 2:

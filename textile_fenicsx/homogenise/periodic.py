@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import dolfinx_mpc
 import numpy as np
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
 import dolfinx
-import dolfinx_mpc
 from textile_fenicsx.errors import GeometryError
 
 __all__ = ["Box", "bounding_box", "check_node_periodicity", "check_one_master", "periodic_constraint", "pin"]
@@ -26,8 +26,8 @@ __all__ = ["Box", "bounding_box", "check_node_periodicity", "check_one_master", 
 @dataclass(frozen=True)
 class Box:
     """The periodic cell [lo, hi] [mm]; tol: distance under which points coincide or lie on a face."""
-    lo: tuple[float, float, float]
-    hi: tuple[float, float, float]
+    lo: tuple[float, ...]
+    hi: tuple[float, ...]
     tol: float
 
     @property
