@@ -15,7 +15,7 @@ ENV HOME=/home/textile-fenicsx HYPOTHESIS_STORAGE_DIRECTORY=/home/textile-fenics
     OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
     OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
     OMPI_MCA_btl=self,sm OMPI_MCA_btl_vader_single_copy_mechanism=none \
-    PRTE_MCA_rmaps_default_mapping_policy=:oversubscribe \
+    PRTE_MCA_rmaps_default_mapping_policy=:oversubscribe OMPI_MCA_mpi_yield_when_idle=1 \
     PYTHONDONTWRITEBYTECODE=1
 
 # The FEniCSx stack, plus tini (for the image only, so not in the shared list), without recommended

@@ -37,6 +37,6 @@ from textile_fenicsx.parallel import install_excepthook as _install_excepthook  
 _install_excepthook()  # under mpirun with several ranks: an uncaught exception ends every rank
 
 
-from textile_fenicsx.api import build, read, show_progress, solve  # noqa: E402
+from textile_fenicsx.api import build, homogenise, read, show_progress, solve, volume_mesh  # noqa: E402
 
-__all__ = ["__version__", "build", "read", "show_progress", "solve"]
+__all__ = ["__version__", "build", "homogenise", "read", "show_progress", "solve", "volume_mesh"]

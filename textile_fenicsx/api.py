@@ -5,6 +5,9 @@
     run = tfx.solve(textile, seed=0.5)         # mesh, contact solve, corrected textile
     run.corrected, run.metrics, run.verdict    # the corrected model, its numbers, its check
     run.write("out/")                          # the output folder (README: "The output folder")
+    cell = tfx.volume_mesh(run.corrected, kind="voxel", size=0.2)   # the periodic volume mesh
+    result = tfx.homogenise(cell, fibre="e-glass", matrix="epoxy")  # C, S, constants, K
+    cell.write("out/volume"), result.write("out/volume")
 
 Every call is collective under MPI (run the script with mpirun); progress goes to the
 `textile_fenicsx` logger (`tfx.show_progress()` prints it from rank 0).
@@ -18,10 +21,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from textile_fenicsx.homogenise import Homogenised
     from textile_fenicsx.pipeline import Run
     from textile_fenicsx.textile import Textile
+    from textile_fenicsx.volumes import CellMesh
 
-__all__ = ["build", "read", "show_progress", "solve"]
+__all__ = ["build", "homogenise", "read", "show_progress", "solve", "volume_mesh"]
 
 
 def read(path) -> Textile:
@@ -59,6 +64,38 @@ def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, 
     settings.setdefault("mesh", MeshOptions(seed))
     settings.setdefault("solver", SolverOptions(method=method))
     return run(textile, Settings(**settings), comm or MPI.COMM_WORLD)
+
+
+def volume_mesh(textile, kind: str = "voxel", size: float = 0.2, comm=None, **options) -> CellMesh:
+    """The periodic volume mesh of a model (a Textile, or a model file's path): `kind` "voxel" or
+    "tet", element size `size` [mm]; other VolumeOptions by name (yarn_vf, z_range, memory_limit,
+    and for tet the TetOptions' own). `.write(folder)` writes its files."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.volumes import VolumeOptions, mesh_cell
+
+    if not hasattr(textile, "yarns"):
+        textile = read(textile)
+    return mesh_cell(textile, VolumeOptions(kind, size, **options), comm or MPI.COMM_WORLD)
+
+
+def homogenise(volume, fibre="e-glass", matrix="epoxy", comm=None, **options) -> Homogenised:
+    """Effective stiffness and conductivity of a meshed cell (what `volume_mesh` returns, or the
+    path of a volume.xdmf it wrote): the six periodic elastic cell problems and three thermal
+    ones, yarns transversely isotropic by Chamis' micromechanics from `fibre` and `matrix` (preset
+    names: e-glass, t300, epoxy; or TOML files). Other HomogeniseOptions by name. `.write(folder)`
+    writes stiffness.json."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.homogenise import HomogeniseOptions
+    from textile_fenicsx.homogenise import homogenise as _homogenise
+    from textile_fenicsx.volume_files import read_volume
+
+    fields = getattr(volume, "fields", None)
+    if fields is None:
+        fields = read_volume(volume, comm or MPI.COMM_WORLD)
+    return _homogenise(fields.mesh, fields.phase, fields.direction, fields.yarn_vf, fibre, matrix,
+                       HomogeniseOptions(**options))
 
 
 def show_progress(level: int = logging.INFO, stream=None) -> None:

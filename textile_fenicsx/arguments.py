@@ -47,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     _mesh_command(subparsers)
     _solve_command(subparsers)
     _volume_mesh_command(subparsers)
+    _homogenise_command(subparsers)
     return parser
 
 
@@ -189,3 +190,23 @@ def _volume_mesh_command(subparsers: Subparsers) -> None:
     p.add_argument("--memory-limit", type=float, metavar="GB",
                    help="refuse sizes whose mesh would need more memory than this (default: what is available)")
     p.set_defaults(run=volume_commands.volume_mesh)
+
+
+def _homogenise_command(subparsers: Subparsers) -> None:
+    """`homogenise`: the effective stiffness and conductivity of a meshed cell."""
+    p = subparsers.add_parser("homogenise", help="effective stiffness and conductivity of a meshed periodic cell",
+                              description=volume_commands.HOMOGENISE_DESCRIPTION)
+    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5)")
+    p.add_argument("--fibre", default="e-glass", metavar="NAME|FILE",
+                   help="fibre material: e-glass (default), t300, or a TOML file (isotropic E, nu or transversely "
+                   "isotropic E1 E2 G12 nu12 G23; conductivities k or k1 k2)")
+    p.add_argument("--matrix", default="epoxy", metavar="NAME|FILE",
+                   help="matrix material: epoxy (default) or a TOML file (isotropic E, nu, k)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder for stiffness.json (created if missing)")
+    p.add_argument("--degree", type=int, default=2, choices=[1, 2],
+                   help="Lagrange degree of the cell problems (default 2: P2 on tetrahedra, Q2 on hexahedra)")
+    p.add_argument("--no-conduction", action="store_true", help="skip the thermal cell problems")
+    p.add_argument("--memory-limit", type=float, metavar="GB",
+                   help="refuse a mesh whose cell problems would need more memory than this (default: what is "
+                   "available)")
+    p.set_defaults(run=volume_commands.homogenise)

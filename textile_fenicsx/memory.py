@@ -16,8 +16,8 @@ import ctypes.util
 
 from textile_fenicsx.errors import TextileError
 
-__all__ = ["BYTES_PER_DOF", "BYTES_PER_DOF_OUT_OF_CORE", "BYTES_PER_RANK", "available_memory", "check",
-           "release_freed_memory"]
+__all__ = ["BYTES_PER_DOF", "BYTES_PER_DOF_OUT_OF_CORE", "BYTES_PER_RANK", "HOMOGENISE_BYTES_PER_DOF",
+           "available_memory", "check", "release_freed_memory"]
 
 # Memory of a plate solve per unknown [bytes], measured by `make bench` (satin coupons, summed peaks:
 # 3.3e5 dofs on 1 and 2 ranks 5.8 and 7.5 kB per dof, 1.3e6 dofs on 2 ranks 6.9 kB per dof, with
@@ -26,6 +26,12 @@ BYTES_PER_DOF = 8e3
 # the same with MUMPS' factors on disk (SolverOptions.out_of_core)
 BYTES_PER_DOF_OUT_OF_CORE = 6e3
 BYTES_PER_RANK = 0.3e9
+# Peak memory of homogenising per elastic unknown and rank [bytes] (matrix, GAMG hierarchy, vectors,
+# mesh, fields), from bench/homogenise_bench.py (2026-11-25): serially, P2 tetrahedra 2.5 kB/dof
+# (0.40, 0.91, 1.59 GB at 100k, 300k, 584k dofs) and Q2 hexahedra 4.4 kB/dof (0.59, 1.47 GB at 100k,
+# 300k: 27-node cells, about twice the entries per row); on 2 ranks the sum over ranks is 5.2 and
+# 6.6 kB/dof (GAMG's parallel setup), so estimates scale the per-dof part with the ranks.
+HOMOGENISE_BYTES_PER_DOF = {"tetrahedron": 2.6e3, "hexahedron": 4.5e3}
 
 
 def available_memory() -> float:

@@ -71,3 +71,33 @@ def volume_mesh(args: argparse.Namespace) -> int:
         print(summary_line(cell.report))
         print(Path(args.out) / "volume.xdmf")
     return 0
+
+
+HOMOGENISE_DESCRIPTION = (
+    "Effective properties of a meshed periodic cell (MESH: the volume.xdmf that volume-mesh wrote): the six "
+    "periodic cell problems of linear elasticity (fluctuation periodic through dolfinx_mpc's multi-point "
+    "constraints, a unit mean strain each; second-order elements; CG + GAMG with the rigid-body near-null "
+    "space) and the three of heat conduction. Yarns are transversely isotropic about their fibre direction, "
+    "their constants from --fibre and --matrix at each element's fibre fraction by Chamis' micromechanics; "
+    "the matrix is --matrix. Writes DIR/stiffness.json: C and S = C^-1 (6 x 6, MPa; Voigt order 11 22 33 "
+    "23 13 12, engineering shear strains), Ex Ey Ez Gxy Gxz Gyz nuxy nuxz nuyz, the Voigt and Reuss bounds, "
+    "the conductivity K (W/(m K)), Vf, dofs, iterations, seconds; prints one line. Runs under mpirun.")
+
+
+def homogenise(args: argparse.Namespace) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.api import homogenise as run_homogenise
+
+    comm = MPI.COMM_WORLD
+    from textile_fenicsx.homogenise import material
+
+    material(args.fibre), material(args.matrix)  # a bad name or file is refused before any work
+    with claim_output(args.out, inputs=[args.mesh], names=("stiffness.json",), force=True, comm=comm):
+        result = run_homogenise(args.mesh, args.fibre, args.matrix, comm, degree=args.degree,
+                                conduction=not args.no_conduction, memory_limit=args.memory_limit)
+        result.write(args.out, comm)
+    if comm.rank == 0:
+        print(result.summary())
+        print(Path(args.out) / "stiffness.json")
+    return 0

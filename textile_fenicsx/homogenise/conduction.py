@@ -1,0 +1,38 @@
+"""The thermal cell problem: three load cases (unit mean temperature gradients) -> effective
+conductivity K (3 x 3).
+
+The fluctuation lives in scalar Lagrange elements of the same degree as the elastic one; GAMG's
+default near-null space (the constant) is the right one.
+"""
+
+from __future__ import annotations
+
+import basix.ufl
+import numpy as np
+import ufl
+
+import dolfinx
+from textile_fenicsx.forms.conduction import conduction_cell_forms
+from textile_fenicsx.homogenise.cellproblem import CellProblem
+from textile_fenicsx.homogenise.periodic import Box
+
+__all__ = ["ThermalCellProblem"]
+
+
+class ThermalCellProblem(CellProblem):
+    """The periodic thermal cell of a DG0 conductivity field K (3 x 3 per cell, W/(m K), global axes).
+
+    `fluctuation_energies()` solves the three load cases; the effective conductivity is then
+    (int K dx + energies) / |Y|.
+    """
+
+    def __init__(self, K: dolfinx.fem.Function, box: Box, options: dict, degree: int = 2):
+        mesh = K.function_space.mesh
+        V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree))
+        G = dolfinx.fem.Constant(mesh, np.zeros(3, dtype=dolfinx.default_scalar_type))
+        a, L = conduction_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), K, G, ufl.dx(domain=mesh))
+        super().__init__(V, a, L, G, box, options, "conduction")
+
+    def fluctuation_energies(self) -> dict:
+        """Solve the three unit mean gradients; see CellProblem.solve."""
+        return self.solve(np.eye(3))
