@@ -180,7 +180,8 @@ def _solve(args) -> int:
         mesh=MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit),
         plate=PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et),
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
-                             penetration_tol=args.penetration_tol, out_of_core=args.out_of_core),
+                             penetration_tol=args.penetration_tol, out_of_core=args.out_of_core,
+                             min_gap=args.min_gap),
         correction=CorrectionOptions(), mould=args.mould)
     _check_repeat(args)
     t = time.perf_counter()
@@ -400,6 +401,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--penetration-tol", type=float, default=1e-6,
                    help="exact method: penetration and complementarity tolerance at the nodes [mm] (1e-6)")
     p.add_argument("--max-iterations", type=int, default=100, help="cap on contact iterations (100)")
+    p.add_argument("--min-gap", type=float, default=0.0, metavar="G",
+                   help="exact method: keep yarns in contact (and a mould's platens) at least G mm apart, their "
+                   "sections unchanged (0: they touch); a tet mesh (volume-mesh --kind tet) needs G > 0")
     p.add_argument("--out-of-core", action="store_true",
                    help="MUMPS keeps its factors on disk ($MUMPS_OOC_TMPDIR, else /tmp): less memory for large "
                    "coupons (README, Performance), somewhat slower")
