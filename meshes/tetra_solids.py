@@ -31,6 +31,8 @@ MARGIN = 6
 # OCC's glue option for the last fragment (1: the arguments do not intersect, they only touch:
 # the pieces lie in the box and touch its sides)
 GLUE = 1
+# A station closer than this fraction of the spacing to a side of the box it crosses is left out.
+BESIDE = 0.4
 
 
 def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink: float = 0.0) -> np.ndarray:
@@ -96,6 +98,16 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
             continue
         if yarn.periodic:
             sec = sec[max(meets[0] - margin, 0):meets[-1] + margin + 1]
+            # no station just beside a side of the box that the yarn runs through: the box would cut
+            # its ruled face into a thin strip (a sliver tet on the plain weave, 0.07 mm from y1)
+            centre = sec.mean(axis=1)
+            near = np.zeros(len(sec), bool)
+            for ax in (0, 1):
+                if abs(yarn.period[ax]) > 1e-9:
+                    r = (centre[:, ax] - lo[ax]) / L[ax]
+                    near |= np.abs(r - np.round(r)) * L[ax] < BESIDE * spacing
+            near[[0, -1]] = False
+            sec = sec[~near]
         out.append(sec)
     return out
 

@@ -97,7 +97,7 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     phases consistent with the model, yarn volumes within 1 %, quality above the stated bound,
     fibre directions on the path; written as .msh with one named group per phase."""
     gapped, _ = loose_plain
-    mesh = tet_mesh(gapped, TetOptions(size=0.5, gap=GAP), comm)
+    mesh = tet_mesh(gapped, TetOptions(size=0.3, gap=GAP), comm)
     if comm.rank != 0:
         assert mesh is None
         return
