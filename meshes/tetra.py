@@ -170,7 +170,10 @@ def _box(textile: Textile, options: TetOptions, gap: float, shrink: float) -> tu
 def check_size(lo: np.ndarray, hi: np.ndarray, options: TetOptions) -> int:
     """Refuse, before meshing, a size estimated to give more than max_elements tets or to need more
     memory than the limit (default: what the system has available). Returns the estimate."""
-    from textile_fenicsx.meshes.projected import available_memory
+    try:  # the project's memory guard (moving to textile_fenicsx/memory.py)
+        from textile_fenicsx.memory import available_memory
+    except ImportError:
+        from textile_fenicsx.meshes.projected import available_memory
 
     estimate = int(TETS_PER_VOLUME * float(np.prod(hi - lo)) / options.size**3)
     need = estimate * BYTES_PER_TET
@@ -337,20 +340,21 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
     initialised = gmsh.isInitialized()
     if not initialised:
         gmsh.initialize(interruptible=False)
+    added = False
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", min(int(options.threads), 2))
         gmsh.option.setNumber("Geometry.OCCParallel", 1)
         gmsh.model.add(f"tet-{textile.name}")
+        added = True
         with tempfile.TemporaryDirectory(prefix="tet-sizes-") as folder:
             (points, tets, phase), lo, hi, pairs = _generate(textile, options, gap, shrink, height, times, folder)
-        quality = gmsh.model.mesh.getElementQualities(
-            np.concatenate([gmsh.model.mesh.getElements(3, v)[1][0] for _, v in gmsh.model.getEntities(3)]), "minSICN")
-        gamma = gmsh.model.mesh.getElementQualities(
-            np.concatenate([gmsh.model.mesh.getElements(3, v)[1][0] for _, v in gmsh.model.getEntities(3)]), "gamma")
+        elements = gmsh.model.mesh.getElementsByType(4)[0]
+        quality = gmsh.model.mesh.getElementQualities(elements, "minSICN")
+        gamma = gmsh.model.mesh.getElementQualities(elements, "gamma")
     finally:
-        if gmsh.isInitialized():
-            gmsh.model.remove() if gmsh.model.getCurrent().startswith("tet-") else None
+        if added:
+            gmsh.model.remove()
         if not initialised:
             gmsh.finalize()
     t = time.perf_counter()
@@ -359,6 +363,10 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
     flip = vol < 0
     tets[flip] = tets[flip][:, [0, 2, 1, 3]]
     vol = np.abs(vol)
+    if vol.min() <= 1e-12 * float(np.prod(hi - lo)):
+        k = int(np.argmin(vol))
+        where = ", ".join(f"{v:.3f}" for v in points[tets[k]].mean(axis=0))
+        raise GeometryError(f"the tet mesh of {textile.name!r} has a flat tet at ({where}) mm (volume {vol[k]:.2g} mm^3)")
     fibre = np.zeros((len(tets), 3))
     centroids = points[tets].mean(axis=1)
     for i in range(len(textile.yarns)):
