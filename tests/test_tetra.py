@@ -118,3 +118,20 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     assert len(back.points) == len(mesh.points)
     assert sum(len(c.data) for c in back.cells if c.type == "tetra") == len(mesh.tets)
     assert set(back.field_data) == set(mesh.names)
+
+
+@pytest.mark.sweep
+@pytest.mark.serial
+def test_tet_family(tmp_path):
+    """Every fabric of the sweep whose solve (with the tet policy's least gap) passes its check is
+    tet-meshed: periodic, no inverted tet, yarn volumes within 1 % (bench/tet_sweep.py; hours)."""
+    import importlib.util
+
+    from conftest import REPO
+
+    spec = importlib.util.spec_from_file_location("tet_sweep", REPO / "bench" / "tet_sweep.py")
+    sweep = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sweep)
+    records = [sweep.run_case(name, 0.25) for name in sweep.cases()]
+    failed = [r["case"] for r in records if r.get("solve") == 0 and not r.get("passed")]
+    assert not failed, sweep.table(records)
