@@ -2,24 +2,25 @@
 
 Policy for yarns in contact (docs/tet_mesh.md has the measurements behind it): the yarns of a
 corrected model touch at zero gap, and two solids that touch over an area cannot be meshed with
-tets of bounded quality (the matrix between them is a wedge of zero angle). So the mesher needs a
-gap of matrix between every two yarns, at least `TetOptions.gap` [mm], which the solve holds
-(`textile-fenicsx solve --min-gap G`, SolverOptions.min_gap: the exact contact method keeps every
-contact node's gap >= G with the sections unchanged, so no yarn volume is lost). The gap sheets
-are meshed with elements fitted to them: the size at a point is `grading` x (its distance to the
-nearest yarn + its distance to the nearest other yarn), between gap / 2 and `size`, on a grid
-given to gmsh as a background field (a PostView), so the tets across a sheet of thickness g are
-about 3 g wide (a sheet one or two tets thick, none flat). A model whose yarns overlap (deeper than 1 % of the thinnest
-yarn's height) is refused, naming the pair and the place; one whose yarns touch or are closer
-than the gap is refused too, pointing to `solve --min-gap`, unless `shrink` is asked for: the last
-resort, every section scaled about its centreline by the factor that opens the gap, and the
-volume lost reported.
+tets of bounded quality (the matrix between them is a wedge of zero angle where they part). So the
+mesher needs a gap of matrix between every two yarns, at least `TetOptions.gap` [mm] (default 5 %
+of the thinnest yarn's height), which the solve holds (`textile-fenicsx solve --min-gap G`,
+SolverOptions.min_gap: the exact contact method keeps every contact node's gap >= G with the
+sections unchanged, so no yarn volume is lost). The gap sheets are meshed with elements fitted to
+them: the size at a point is `grading` x (its distance to the nearest yarn + its distance to the
+nearest other yarn), between `smallest` and `size`, on a grid given to gmsh as a background field.
+A model whose yarns overlap (deeper than 1 % of the thinnest yarn's height) is refused, naming the
+pair, the place and the depth; one whose yarns are closer than 0.95 x the gap is refused too,
+pointing to `solve --min-gap`, unless `shrink` is asked for: the last resort, every section scaled
+about its centreline by the factor that opens the gap, and the volume lost reported.
 
 The box is the cell in x, y and the yarns' own z extent padded by gap / 2 above and below (a stack
 of identical plies is then separated by the gap, like yarns), or `z_range` (a mould's). The mesh
-is periodic in x, y and z: gmsh copies the mesh of each - face onto its + face (`setPeriodic`).
+is periodic in x, y and z: gmsh copies the mesh of each - face onto its + face (`setPeriodic`),
+and the + face's nodes are then put exactly on their partners' images.
 
-gmsh runs on rank 0 only; the arrays are returned there (None on the other ranks).
+gmsh runs on rank 0 only; the arrays are returned there (None on the other ranks); an error is
+raised on every rank.
 """
 
 from __future__ import annotations
