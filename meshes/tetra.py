@@ -10,7 +10,7 @@ sections unchanged, so no yarn volume is lost). The gap sheets are meshed with e
 them: the size at a point is `grading` x (its distance to the nearest yarn + its distance to the
 nearest other yarn), between `smallest` and `size`, on a grid given to gmsh as a background field.
 A model whose yarns overlap (deeper than 1 % of the thinnest yarn's height) is refused, naming the
-pair, the place and the depth; one whose yarns are closer than 0.95 x the gap is refused too,
+pair, the place and the depth; one whose yarns are closer than 0.75 x the gap is refused too,
 pointing to `solve --min-gap`, unless `shrink` is asked for: the last resort, every section scaled
 about its centreline by the factor that opens the gap, and the volume lost reported.
 
@@ -44,6 +44,9 @@ log = logging.getLogger(__name__)
 
 # Overlap the mesher accepts, as a fraction of the thinnest yarn's height (the solve's check: verify.py).
 OVERLAP_TOLERANCE = 0.01
+# The least gap the mesher accepts, as a fraction of the gap asked for: the solve holds the gap at
+# its nodes, and between them the gap dips by the P2 field's error (to 0.91 G on the lenticular satin).
+ACCEPT = 0.75
 # Memory gmsh needs per tet while meshing [bytes] (measured: see docs/tet_mesh.md), and the
 # estimate's tets per mm^3 at size h: about 8.5 / h^3 for a uniform mesh, times 3 for the sheets.
 BYTES_PER_TET = 2.5e3
@@ -143,7 +146,7 @@ def check_contacts(textile: Textile, gap: float, shrink: bool, n: int = 200) -> 
                             f"{OVERLAP_TOLERANCE:.0%} of the thinnest yarn's height, {height:.3f} mm): a tet mesh "
                             "needs yarns apart; correct the model with `textile-fenicsx solve --min-gap G` "
                             "first, or mesh it with --kind voxel")
-    if g["gap"] < 0.95 * gap:
+    if g["gap"] < ACCEPT * gap:
         if not shrink:
             raise GeometryError(f"{a} and {b} are {g['gap']:.4f} mm apart at {where}, less than the gap the tet "
                                 f"mesh needs ({gap:.4f} mm): solve with `textile-fenicsx solve --min-gap {gap:.3g}`, "
