@@ -53,6 +53,9 @@ BYTES_PER_TET = 2.5e3
 TETS_PER_VOLUME = 25.0
 # gmsh's optimisers run after its own (Mesh.Optimize) on the volume mesh
 OPTIMISE = ("Relocate3D", "")
+# How far apart [fraction of the box] the bounding boxes of two faces paired as periodic may be: OCC's
+# boxes of spline faces are loose (the faces are then checked by the mesh's periodicity).
+PAIR_TOLERANCE = 5e-4
 
 
 @dataclass(frozen=True)
@@ -285,7 +288,7 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
              times["solids_s"], estimate)
     t = time.perf_counter()
-    pairs = solids.periodic_pairs(lo, hi, (0, 1, 2), 1e-4 * float(np.max(hi - lo)))
+    pairs = solids.periodic_pairs(lo, hi, (0, 1, 2), PAIR_TOLERANCE * float(np.max(hi - lo)))
     for _, slaves, masters, shift, _ in pairs:
         affine = np.eye(4)
         affine[:3, 3] = shift
