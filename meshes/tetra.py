@@ -167,8 +167,8 @@ def _box(textile: Textile, options: TetOptions, gap: float, shrink: float) -> tu
         z0, z1 = map(float, options.z_range)
     else:
         z0, z1 = np.inf, -np.inf
-        for i in range(len(textile.yarns)):
-            sec = solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
+        for i in range(len(textile.yarns)):  # sampled finer than the splines' points: they overshoot
+            sec = solids.yarn_sections(textile, i, options.spacing / 2, 4 * options.points, shrink)
             z0, z1 = min(z0, sec[..., 2].min()), max(z1, sec[..., 2].max())
         z0, z1 = z0 - gap / 2, z1 + gap / 2
     return np.array([c.x0, c.y0, z0]), np.array([c.x0 + c.lx, c.y0 + c.ly, z1])
