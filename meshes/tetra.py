@@ -47,10 +47,10 @@ OVERLAP_TOLERANCE = 0.01
 # The least gap the mesher accepts, as a fraction of the gap asked for: the solve holds the gap at
 # its nodes, and between them the gap dips by the P2 field's error (to 0.91 G on the lenticular satin).
 ACCEPT = 0.75
-# Memory gmsh needs per tet while meshing [bytes] (measured: see docs/tet_mesh.md), and the
-# estimate's tets per mm^3 at size h: about 8.5 / h^3 for a uniform mesh, times 3 for the sheets.
-BYTES_PER_TET = 2.5e3
-TETS_PER_VOLUME = 25.0
+# Memory of the mesh process per tet [bytes] and tets per mm^3 of box at size h, x h^3: measured on
+# the corrected satin4 at size 0.25 (peak 1.4 GB and 300 756 tets in 127 mm^3: 4.7 kB and 37).
+BYTES_PER_TET = 5e3
+TETS_PER_VOLUME = 37.0
 # gmsh's optimisers run after its own (Mesh.Optimize) on the volume mesh
 OPTIMISE = ("Relocate3D", "")
 # How far apart [fraction of the box] the bounding boxes of two faces paired as periodic may be: OCC's
