@@ -140,7 +140,8 @@ def test_periodicity_check_finds_a_broken_node():
     bad = pts.copy()
     bad[np.flatnonzero(bad[:, 0] == 1)[4], 1] += 1e-6  # a node on x+ moved off its image
     report = periodic_mismatch(bad, box)
-    assert not report["periodic"] and report["x"]["unmatched"] == 2 and report["y"]["unmatched"] == 0
+    assert not report["periodic"] and report["x"]["missing"] == 1 and report["y"]["missing"] == 0
+    assert report["x"]["example"] == bad[np.flatnonzero(bad[:, 0] == 1)[4]].tolist()
 
 
 @pytest.mark.serial

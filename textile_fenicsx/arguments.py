@@ -157,6 +157,14 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.add_argument("--penetration-tol", type=float, default=1e-6,
                    help="exact method: penetration and complementarity tolerance at the nodes [mm] (1e-6)")
     p.add_argument("--max-iterations", type=int, default=100, help="cap on contact iterations (100)")
+    p.add_argument("--volume-mesh", choices=["voxel", "tet"], metavar="KIND",
+                   help="then mesh the corrected model's periodic cell with volume elements (voxel or tet: the files "
+                   "of volume-mesh, in DIR)")
+    volume_commands.add_volume_options(p, prefix="volume-")
+    p.add_argument("--min-gap", type=float, default=0.0, metavar="G",
+                   help="exact method: keep yarns in contact (and a mould's platens) at least G mm apart, their "
+                   "sections unchanged (default 0: they touch); a tet mesh needs a gap (--volume-mesh tet sets "
+                   "G to 5 %% of the thinnest yarn's height unless given)")
     p.add_argument("--out-of-core", action="store_true",
                    help="MUMPS keeps its factors on disk ($MUMPS_OOC_TMPDIR, else /tmp): less memory for large "
                    "coupons (README, Performance), somewhat slower")

@@ -13,7 +13,7 @@ import time
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
-from textile_fenicsx import __version__, limits
+from textile_fenicsx import __version__, limits, volume_commands
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.files import claim_output, staged_folder
 
@@ -177,14 +177,18 @@ def solve(args) -> int:
         mesh=MeshOptions(args.seed, args.sliver, args.max_slope, args.allow_steep, args.memory_limit),
         plate=PlateParameters(Db1=args.db1, Db2=args.db2, Db12=args.db12, sigma1=args.sigma1, Ec=args.ec, Et=args.et),
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
-                             penetration_tol=args.penetration_tol, out_of_core=args.out_of_core),
+                             penetration_tol=args.penetration_tol, out_of_core=args.out_of_core,
+                             min_gap=args.min_gap),
         correction=CorrectionOptions(), mould=args.mould)
     _check_repeat(args)
+    volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     t = time.perf_counter()
     textile = _repeated(load_input(args.input), args, settings.mesh, comm.size, settings.solver.bytes_per_dof)
+    settings = volume_commands.with_gap(settings, textile, volume, args.min_gap)
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
-    claim = claim_output(args.out, inputs=inputs, names=RESULT_NAMES + FAILED_NAMES, force=args.force, comm=comm)
+    names = RESULT_NAMES + FAILED_NAMES + (volume_commands.FILES if volume else ())
+    claim = claim_output(args.out, inputs=inputs, names=names, force=args.force, comm=comm)
     with claim if args.out else nullcontext(), _painter(args, comm, textile) as painter:
         result = run(textile, settings, comm)
         result.times["model"] = model_time
@@ -206,10 +210,13 @@ def solve(args) -> int:
             if args.json:
                 print((out / "metrics.json").read_text() if args.out else json.dumps({**summary, "verdict": verdict},
                                                                                     indent=1))
+        if verdict["passed"] and volume is not None:
+            volume_commands.mesh_corrected(result, volume, args.out)
     if not verdict["passed"]:
         kept = f"; the outputs are kept in {args.out}/ (rejected.tg3, FAILED)" if args.out else ""
+        skipped = "; no volume mesh" if volume is not None else ""
         raise SolverError("the corrected model fails its check: "
-                          + "; ".join(f["message"] for f in verdict["failures"]) + kept)
+                          + "; ".join(f["message"] for f in verdict["failures"]) + kept + skipped)
     return 0
 
 

@@ -4,13 +4,20 @@ arguments are in arguments.py."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+from textile_fenicsx.errors import TextileError
 from textile_fenicsx.files import claim_output
 
 if TYPE_CHECKING:
+    from textile_fenicsx.pipeline import Run, Settings
+    from textile_fenicsx.textile import Textile
     from textile_fenicsx.volumes import VolumeOptions
+
+# what a volume mesh writes (volume_files.FILES, named here without importing DOLFINx)
+FILES = ("volume.xdmf", "volume.h5", "volume.msh", "volume.vtu", "volume.inp", "mesh_report.json")
 
 VOLUME_DESCRIPTION = (
     "Mesh the periodic cell of a model (a corrected one, or TexGen's idealised one) as volume elements, "
@@ -30,17 +37,57 @@ def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
     p.add_argument("--yarn-vf", type=float, metavar="V",
                    help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
                    "(default: from the fibre data; 0.65 with a warning where there is none)")
-    p.add_argument("--z-range", type=float, nargs=2, metavar=("ZMIN", "ZMAX"),
-                   help="the cell through the thickness [mm] (default: the yarns' own extent)")
+    if not prefix:
+        p.add_argument("--z-range", type=float, nargs=2, metavar=("ZMIN", "ZMAX"),
+                       help="the cell through the thickness [mm] (default: the yarns' own extent; tet: padded by "
+                       "half the gap)")
+        p.add_argument("--gap", type=float, metavar="G",
+                       help="tet: the least gap between yarns the mesh is made for [mm] (default 5 %% of the "
+                       "thinnest yarn's height; the model must hold 0.75 G: solve --min-gap G)")
 
 
 def options_from(args: argparse.Namespace, kind: str, size: float) -> VolumeOptions:
     """VolumeOptions from the parsed arguments (checked before any work)."""
     from textile_fenicsx.volumes import VolumeOptions
 
-    return VolumeOptions(kind=kind, size=size, yarn_vf=args.yarn_vf,
-                         z_range=tuple(args.z_range) if args.z_range else None,
-                         memory_limit=getattr(args, "memory_limit", None))
+    z_range = getattr(args, "z_range", None)
+    return VolumeOptions(kind=kind, size=size, yarn_vf=args.yarn_vf, z_range=tuple(z_range) if z_range else None,
+                         gap=getattr(args, "gap", None), memory_limit=getattr(args, "memory_limit", None))
+
+
+def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
+    """`solve --volume-mesh KIND`'s options (checked before the solve), or None."""
+    if args.volume_mesh is None:
+        return None
+    if not args.out:
+        raise TextileError("--volume-mesh needs --out DIR (the volume mesh's files go there)")
+    return options_from(args, args.volume_mesh, args.volume_size)
+
+
+def with_gap(settings: Settings, textile: Textile, volume: VolumeOptions | None, min_gap: float) -> Settings:
+    """The solve's settings for a tet mesh: unless --min-gap was given, the gap the tet mesher needs
+    (5 % of the thinnest yarn's height), held by the contact solve (no yarn volume is lost)."""
+    if volume is None or volume.kind != "tet" or min_gap > 0:
+        return settings
+    from textile_fenicsx.meshes.tetra import TetOptions, default_gap
+
+    gap = default_gap(textile, TetOptions(gap=volume.gap))
+    return replace(settings, solver=replace(settings.solver, min_gap=gap))
+
+
+def mesh_corrected(run: Run, options: VolumeOptions, out: str) -> Any:
+    """The corrected model's volume mesh, into `out` beside the run's files; its cell through the
+    thickness is the mould's cavity where the mould closed (else the yarns' own extent)."""
+    from textile_fenicsx.volumes import mesh_cell
+
+    if run.mould is not None and options.z_range is None:
+        options = replace(options, z_range=(run.mould.bottom, run.mould.top))
+    assert run.corrected is not None
+    cell = mesh_cell(run.corrected, options, run.comm)
+    cell.write(out)
+    if run.comm.rank == 0:
+        print(summary_line(cell.report))
+    return cell
 
 
 def summary_line(report: dict) -> str:

@@ -37,20 +37,25 @@ class VolumeOptions:
     kind: "voxel" (hexahedra, phase at their centres) or "tet" (conforming tetrahedra).
     size: element size H [mm]. yarn_vf: every yarn's intra-yarn fibre volume fraction [-], instead
     of the model's fibre data. z_range: the cell through the thickness (zmin, zmax) [mm], e.g. a
-    mould's cavity; None: the yarns' own extent. memory_limit: largest memory [GB] the mesh and
-    its cell problems may take (default: what the system has available).
+    mould's cavity; None: the yarns' own extent (tet: padded by half the gap). gap: tet only, the
+    least gap between yarns the mesh is made for [mm] (meshes.tetra: default 5 % of the thinnest
+    yarn's height). memory_limit: largest memory [GB] the mesh may take (default: what the system
+    has available).
     """
 
     kind: str = "voxel"
     size: float = 0.2
     yarn_vf: float | None = None
     z_range: tuple[float, float] | None = None
+    gap: float | None = None
     memory_limit: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise TextileError(f"volume mesh kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
         limits.check_length("volume mesh size", self.size)
+        if self.gap is not None:
+            limits.check_length("tet gap", self.gap)
         if self.yarn_vf is not None:
             limits.check_range("yarn fibre volume fraction (--yarn-vf)", self.yarn_vf, 1e-6, MAX_PACKING)
         if self.memory_limit is not None:
@@ -80,22 +85,36 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
     result, error = None, None
     if comm.rank == 0:
         try:
-            box = cell_box(textile, options.z_range)
             vf = fibre_fractions(textile, options)
             if options.kind == "voxel":
                 from textile_fenicsx.meshes.voxel import voxel_mesh
 
-                result = voxel_mesh(textile, box, options.size, vf)
+                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.size, vf)
             else:
-                from textile_fenicsx.meshes.tetra import tet_mesh  # type: ignore[import-not-found]
-
-                result = tet_mesh(textile, box, options.size, vf)
+                result = _tet(textile, options, vf)
         except TextileError as e:
             error = e
     error = comm.bcast(error, root=0)
     if error is not None:
         raise error
     return result
+
+
+def _tet(textile: Textile, options: VolumeOptions, vf: list[float]) -> VolumeMesh:
+    """The conforming tet mesh (meshes.tetra, on this rank) as a VolumeMesh."""
+    from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh
+    from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+
+    tet = tet_mesh(textile, TetOptions(size=options.size, gap=options.gap, z_range=options.z_range,
+                                       memory_limit=options.memory_limit), MPI.COMM_SELF)
+    assert tet is not None
+    box = Box(tuple(float(v) for v in tet.lo), tuple(float(v) for v in tet.hi))
+    yarn_vf = np.where(tet.phase > 0, np.asarray([0.0, *vf])[tet.phase], 0.0)
+    report = dict(tet.report)
+    report["yarns"] = [{"name": y["yarn"], "meshed_volume": y["meshed_mm3"], "model_volume": y["model_mm3"],
+                        "relative_error": y["error_percent"] / 100} for y in report["volume"]["per_yarn"]]
+    report["periodicity"] = {**periodic_mismatch(tet.points, box), "snapped_mm": report["periodicity"]["snapped_mm"]}
+    return VolumeMesh("tet", box, tet.points, tet.tets, tet.phase, tet.fibre, yarn_vf, tet.names[1:], report)
 
 
 @dataclass(eq=False)

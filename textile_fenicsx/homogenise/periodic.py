@@ -10,8 +10,6 @@ periodic, which `check_node_periodicity` checks first (numpy/scipy only: no DOLF
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import dolfinx_mpc
 import numpy as np
 from mpi4py import MPI
@@ -19,24 +17,9 @@ from scipy.spatial import cKDTree
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.meshes.volume import Box, periodic_mismatch
 
 __all__ = ["Box", "bounding_box", "check_node_periodicity", "check_one_master", "periodic_constraint", "pin"]
-
-
-@dataclass(frozen=True)
-class Box:
-    """The periodic cell [lo, hi] [mm]; tol: distance under which points coincide or lie on a face."""
-    lo: tuple[float, ...]
-    hi: tuple[float, ...]
-    tol: float
-
-    @property
-    def size(self) -> np.ndarray:
-        return np.asarray(self.hi) - np.asarray(self.lo)
-
-    @property
-    def volume(self) -> float:
-        return float(np.prod(self.size))
 
 
 def bounding_box(mesh: dolfinx.mesh.Mesh, rtol: float = 1e-7) -> Box:
@@ -54,31 +37,25 @@ def _on_plus(x: np.ndarray, box: Box) -> np.ndarray:
 
 
 def check_node_periodicity(points: np.ndarray, box: Box, what: str = "mesh") -> None:
-    """Raise GeometryError unless every point on a face of the box has its images across it.
+    """Raise GeometryError unless every point lies in the box and every point on a face of the box
+    has its image across it, within box.tol (meshes.volume.periodic_mismatch).
 
-    points (n, 3): all the nodes (or dof locations); for every axis i, each point on the i- face
-    needs a point at + L_i e_i and each on the i+ face one at - L_i e_i, within box.tol.
+    points (n, 3): all the nodes (or dof locations).
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
-    lo, hi, size = np.asarray(box.lo), np.asarray(box.hi), box.size
+    lo, hi = np.asarray(box.lo), np.asarray(box.hi)
     outside = np.any((points < lo - box.tol) | (points > hi + box.tol), axis=1)
     if np.any(outside):
         raise GeometryError(f"{what}: {int(outside.sum())} node(s) outside the periodic box {_point(lo)} - "
                             f"{_point(hi)}, e.g. {_point(points[outside][0])}")
-    on_face = np.any((np.abs(points - lo) < box.tol) | (np.abs(points - hi) < box.tol), axis=1)
-    boundary = points[on_face]
-    tree = cKDTree(boundary)
-    missing = []
-    for i in range(3):
-        for side, shift in ((lo[i], size[i]), (hi[i], -size[i])):
-            here = boundary[np.abs(boundary[:, i] - side) < box.tol]
-            image = here.copy()
-            image[:, i] += shift
-            distance, _ = tree.query(image, distance_upper_bound=box.tol) if len(image) else (np.zeros(0), None)
-            missing.extend(here[~np.isfinite(distance)])
-    if missing:
-        raise GeometryError(f"{what} is not periodic: {len(missing)} face node(s) have no image on the opposite "
-                            f"face (within {box.tol:.3g} mm), e.g. {_point(missing[0])}")
+    report = periodic_mismatch(points, box, tol=box.tol / float(np.max(box.size)))
+    if not report["periodic"]:
+        axis = next(a for a in "xyz" if report[a]["missing"] or report[a]["plus"] != report[a]["minus"])
+        r = report[axis]
+        example = f", e.g. {_point(r['example'])}" if r["example"] is not None else ""
+        raise GeometryError(f"{what} is not periodic: on the {axis} faces {r['missing']} of {r['plus']} node(s) of "
+                            f"the + face have no image on the - face ({r['minus']} nodes there) within "
+                            f"{box.tol:.3g} mm{example}")
 
 
 def _point(x) -> str:

@@ -67,10 +67,10 @@ class ContactPair:
 
 
 def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters, exact: bool,
-                extra: np.ndarray | None = None):
+                extra: np.ndarray | None = None, min_gap: float = 0.0):
     """The pairs, and the (row, column) unknowns of T^T J T's entries in the order `jacobian_values`
     gives them, and the unknowns every pair (and `extra`: the mould's) needs (sorted: the gathered
-    vector's layout)."""
+    vector's layout). min_gap [mm] is added to every node's margin (initial_gap)."""
     extra = np.zeros(0, np.int64) if extra is None else extra
     yarns = ms.yarns
     scratch, cell_order = {}, {}
@@ -93,7 +93,7 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         forms = PairForms(g, energy, residual, jacobian, dolfinx.fem.form(penetration_volume(g, dx)), M, nnz)
         # the overlap's dofs on u and on l (the same points)
         du = ms.contact_dofs[(u, l)][:, 0]
-        g0, margin = initial_gap(ms, u, l)
+        g0, margin = initial_gap(ms, u, l, min_gap)
         parent = numbering.parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
         owner = numbering.parent_owner(yu.to_parent[du])
         cu, cl = numbering.unknown(u, parent), numbering.unknown(l, parent)
@@ -116,13 +116,14 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
     return pairs, (cat(rows), cat(cols)), need
 
 
-def initial_gap(ms: MidSurfaces, u: int, l: int) -> tuple[np.ndarray, np.ndarray]:
+def initial_gap(ms: MidSurfaces, u: int, l: int, min_gap: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The pair's gap before any displacement, bottom of u less top of l, and the margins its
-    nodes keep, at its overlap dofs [mm] (from the mid-surfaces' z0, t and contact margins)."""
+    nodes keep, at its overlap dofs [mm] (from the mid-surfaces' z0, t and contact margins, plus
+    the least gap `min_gap` asked for: SolverOptions.min_gap)."""
     yu, yl = ms.yarns[u], ms.yarns[l]
     du, dl = ms.contact_dofs[(u, l)][:, 0], ms.contact_dofs[(u, l)][:, 1]
     g0 = (yu.z0.x.array[du] - yu.t.x.array[du] / 2) - (yl.z0.x.array[dl] + yl.t.x.array[dl] / 2)
-    return g0, ms.contact_margin.get((u, l), np.zeros(len(du)))
+    return g0, ms.contact_margin.get((u, l), np.zeros(len(du))) + min_gap
 
 
 def jacobian_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:
@@ -166,9 +167,10 @@ class MouldRows:
     g0: np.ndarray
 
 
-def mould_rows(ms: MidSurfaces, numbering: Periodicity, images: list[np.ndarray], mould: Mould) -> MouldRows:
-    """Every yarn node between the platens: z - t/2 >= bottom and z + t/2 <= top at its owned,
-    non-image dofs (each unknown once over the ranks)."""
+def mould_rows(ms: MidSurfaces, numbering: Periodicity, images: list[np.ndarray], mould: Mould,
+               min_gap: float = 0.0) -> MouldRows:
+    """Every yarn node between the platens: z - t/2 >= bottom + min_gap and z + t/2 <= top - min_gap
+    at its owned, non-image dofs (each unknown once over the ranks)."""
     parts = []
     for y, image in zip(ms.yarns, images):
         dofs = np.flatnonzero(~image[:y.V.dofmap.index_map.size_local])
@@ -176,7 +178,7 @@ def mould_rows(ms: MidSurfaces, numbering: Periodicity, images: list[np.ndarray]
         z0, t = y.z0.x.array[dofs], y.t.x.array[dofs]
         ones = np.ones(len(u))
         parts.append((np.concatenate([u, u]), np.concatenate([ones, -ones]),
-                      np.concatenate([z0 - t / 2 - mould.bottom, mould.top - (z0 + t / 2)])))
+                      np.concatenate([z0 - t / 2 - mould.bottom, mould.top - (z0 + t / 2)]) - min_gap))
     unknown, sign, g0 = (np.concatenate(a) for a in zip(*parts))
     return MouldRows(unknown.astype(np.int64), sign, g0)
 

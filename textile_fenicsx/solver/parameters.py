@@ -74,6 +74,10 @@ class SolverOptions:
     plain dict, written under the solver's own prefix only while it is read). out_of_core: MUMPS
     keeps its factors on disk (OUT_OF_CORE, in $MUMPS_OOC_TMPDIR or /tmp), for coupons larger than
     the memory: the memory guard then assumes BYTES_PER_DOF_OUT_OF_CORE instead of BYTES_PER_DOF.
+    min_gap: the least gap [mm] the exact method keeps between yarns in contact, and between a yarn
+    and a mould's platens (default 0: the yarns touch): added to every contact node's margin, so the
+    yarns' sections, and so their volumes, are unchanged (a conforming tet mesh needs a gap of
+    matrix between the yarns: meshes/tetra.py).
     """
 
     method: str = "exact"
@@ -82,6 +86,7 @@ class SolverOptions:
     displacement_tol: float = 1e-6
     petsc: dict = field(default_factory=lambda: dict(DIRECT_LDLT))
     out_of_core: bool = False
+    min_gap: float = 0.0
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -89,6 +94,9 @@ class SolverOptions:
         check_count("max_iterations", self.max_iterations, 1, MAX_ITERATIONS)
         check_positive("penetration_tol", self.penetration_tol)
         check_positive("displacement_tol", self.displacement_tol)
+        object.__setattr__(self, "min_gap", check_positive("min_gap", self.min_gap, allow_zero=True))
+        if self.min_gap > 0 and self.method != "exact":
+            raise TextileError("min_gap needs the exact contact method (the penalty method cannot hold a gap)")
 
     @property
     def linear_options(self) -> dict:

@@ -113,9 +113,9 @@ class ContactProblem:
         self.R, self.b_fixed = assemble_plates(ms, numbering, pattern, params, loads or {}, foundation_stiffness)
         self._translation(foundation_stiffness, mould is not None)
         images = numbering.image_dofs(ms)
-        platens = None if mould is None else mould_rows(ms, numbering, images, mould)
+        platens = None if mould is None else mould_rows(ms, numbering, images, mould, options.min_gap)
         extra = np.zeros(0, np.int64) if platens is None else platens.unknown
-        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact, extra)
+        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact, extra, options.min_gap)
         self.nodes = contact_nodes(self.comm, self.pairs, need, images, platens) if self.exact else None
         if self.nodes is not None:
             nr, nc = self.nodes.pattern()
@@ -148,7 +148,7 @@ class ContactProblem:
             raise ValueError("a problem with a mould cannot be renewed: build a new one")
         old = [p.g0 for p in self.pairs]
         self.pairs = [replace(p, g0=g0, margin=margin) for p, (g0, margin) in
-                      zip(self.pairs, (initial_gap(self.ms, p.upper, p.lower) for p in self.pairs))]
+                      zip(self.pairs, (initial_gap(self.ms, p.upper, p.lower, options.min_gap) for p in self.pairs))]
         if self.exact:
             self._add_contact(self.b_fixed, [-residual_values(p, p.g0 - g) for p, g in zip(self.pairs, old)])
         if self.nodes is not None:  # the same nodes of the same pairs (no platens)

@@ -1,0 +1,502 @@
+"""The conforming, periodic tet mesh of a unit cell: matrix and yarns (gmsh OpenCASCADE).
+
+Policy for yarns in contact (docs/tet_mesh.md has the measurements behind it): the yarns of a
+corrected model touch at zero gap, and two solids that touch over an area cannot be meshed with
+tets of bounded quality (the matrix between them is a wedge of zero angle where they part). So the
+mesher needs a gap of matrix between every two yarns, at least `TetOptions.gap` [mm] (default 5 %
+of the thinnest yarn's height), which the solve holds (`textile-fenicsx solve --min-gap G`,
+SolverOptions.min_gap: the exact contact method keeps every contact node's gap >= G with the
+sections unchanged, so no yarn volume is lost). The gap sheets are meshed with elements fitted to
+them: the size at a point is `grading` x (its distance to the nearest yarn + its distance to the
+nearest other yarn), between `smallest` and `size`, on a grid given to gmsh as a background field.
+A model whose yarns overlap (deeper than 1 % of the thinnest yarn's height) is refused, naming the
+pair, the place and the depth; one whose yarns are closer than 0.75 x the gap is refused too,
+pointing to `solve --min-gap`, unless `shrink` is asked for: the last resort, every section scaled
+about its centreline by the factor that opens the gap, and the volume lost reported.
+
+The box is the cell in x, y and the yarns' own z extent padded by gap / 2 above and below (a stack
+of identical plies is then separated by the gap, like yarns), or `z_range` (a mould's). The mesh
+is periodic in x, y and z: gmsh copies the mesh of each - face onto its + face (`setPeriodic`),
+and the + face's nodes are then put exactly on their partners' images.
+
+gmsh runs on rank 0 only; the arrays are returned there (None on the other ranks); an error is
+raised on every rank.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+from scipy.spatial import cKDTree
+
+from textile_fenicsx.errors import GeometryError, TextileError, check_positive
+from textile_fenicsx.meshes import tetra_checks as checks
+from textile_fenicsx.meshes import tetra_solids as solids
+from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+from textile_fenicsx.textile import Textile
+
+log = logging.getLogger(__name__)
+
+# Overlap the mesher accepts, as a fraction of the thinnest yarn's height (the solve's check: verify.py).
+OVERLAP_TOLERANCE = 0.01
+# The least gap the mesher accepts, as a fraction of the gap asked for: the solve holds the gap at
+# its nodes, and between them the gap dips by the P2 field's error (to 0.91 G on the lenticular satin).
+ACCEPT = 0.75
+# Memory of the mesh process per tet [bytes] and tets per mm^3 of box at size h, x h^3: measured on
+# the corrected satin4 at size 0.25 (peak 1.4 GB and 300 756 tets in 127 mm^3: 4.7 kB and 37).
+BYTES_PER_TET = 5e3
+TETS_PER_VOLUME = 37.0
+# gmsh's optimisers run after its own (Mesh.Optimize) on the volume mesh
+OPTIMISE = ("Relocate3D", "")
+# How far apart [fraction of the box] the bounding boxes of two faces paired as periodic may be: OCC's
+# boxes of spline faces are loose (the faces are then checked by the mesh's periodicity).
+PAIR_TOLERANCE = 5e-4
+
+
+@dataclass(frozen=True)
+class TetOptions:
+    """Tet-mesh settings (lengths in mm).
+
+    size: largest element size. gap: the least gap between yarns (and between a yarn and the box's
+    top or bottom face, with gap / 2 there) the mesh is made for; default 5 % of the thinnest yarn's
+    height. grading: element size per unit of local gap (the sum of the distances to the two
+    nearest yarns). curvature: elements per 2 pi of the yarn surfaces' curvature. spacing: station
+    spacing along the yarns (at least one per master node); points: points per section. z_range:
+    the box's (zmin, zmax), default the yarns' extent padded by gap / 2. shrink: allow the last
+    resort (sections scaled down to open the gap; the volume lost is reported). max_elements:
+    refuse a size estimated to give more tets. threads: gmsh's threads (at most 2 here).
+    """
+
+    size: float = 0.25
+    gap: float | None = None
+    grading: float = 3.0
+    curvature: int = 24
+    spacing: float = 0.25
+    points: int = 24
+    z_range: tuple | None = None
+    shrink: bool = False
+    max_elements: int = 3_000_000
+    threads: int = 2
+    memory_limit: float | None = None
+
+    def __post_init__(self):
+        check_positive("tet size", self.size)
+        if self.gap is not None:
+            check_positive("tet gap", self.gap)
+        check_positive("tet grading", self.grading)
+        check_positive("tet spacing", self.spacing)
+        if int(self.points) < 8:
+            raise TextileError(f"tet points per section must be >= 8, got {self.points!r}")
+        if self.z_range is not None and not float(self.z_range[1]) > float(self.z_range[0]):
+            raise TextileError(f"tet z_range must be (zmin, zmax) with zmax > zmin, got {self.z_range!r}")
+
+
+@dataclass
+class TetMesh:
+    """Linear tets of the cell (on rank 0).
+
+    points (N, 3) [mm]; tets (E, 4) node indices, positive orientation; phase (E,) 0 the matrix,
+    1 + i yarn i; fibre (E, 3) unit fibre direction of yarn elements (0 in the matrix); lo, hi the
+    box's corners [mm]; names: phase -> name; report: the mesh report (JSON-ready).
+    """
+
+    points: np.ndarray
+    tets: np.ndarray
+    phase: np.ndarray
+    fibre: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    names: list
+    report: dict = field(default_factory=dict)
+
+
+def smallest(options: TetOptions, gap: float, height: float) -> float:
+    """The smallest element size [mm]: half the gap, else a sixth of the largest size but no more
+    than an eighth of the thinnest yarn's height (the curvature of a lens or ellipse tip would ask
+    for elements of a hundredth of a mm all along every yarn's edges: 4x the tets on the plain
+    weave for 0.3 % of its volume; coarser, the tips' chords lose more than 1 % of it)."""
+    return max(gap / 2, min(options.size / 6, height / 8))
+
+
+def thinnest_height(textile: Textile) -> float:
+    """The least section height of any yarn [mm] (up extent of its section polygons)."""
+    least = np.inf
+    for y in textile.yarns:
+        sec = y.section_points(y.stations(textile.resolution.spacing, 1), 32)
+        least = min(least, float((sec[..., 1].max(axis=1) - sec[..., 1].min(axis=1)).min()))
+    return least
+
+
+def default_gap(textile: Textile, options: TetOptions) -> float:
+    """The gap the mesh is made for [mm]: options.gap, else 5 % of the thinnest yarn's height."""
+    return options.gap if options.gap is not None else 0.05 * thinnest_height(textile)
+
+
+def check_contacts(textile: Textile, gap: float, shrink: bool, n: int = 200) -> dict:
+    """The policy's check before meshing: refuse overlapping yarns; yarns closer than `gap` are
+    refused too, or (shrink) get the section scale that opens it. Returns the measured gap, the
+    pair, the place and the shrink fraction (0: none)."""
+    height = thinnest_height(textile)
+    g = checks.yarn_gaps(textile, n)
+    info = {"least_gap_mm": g["gap"], "pair": g["pair"], "at_mm": g["at"], "thinnest_height_mm": height,
+            "shrink": 0.0}
+    if g["pair"] is None:
+        return info
+    a, b = (textile.yarns[k].name for k in g["pair"])
+    where = "(" + ", ".join(f"{v:.3f}" for v in g["at"]) + ") mm"
+    if g["gap"] < -OVERLAP_TOLERANCE * height:
+        raise GeometryError(f"{a} and {b} overlap at {where}, {-g['gap']:.4f} mm deep (more than "
+                            f"{OVERLAP_TOLERANCE:.0%} of the thinnest yarn's height, {height:.3f} mm): a tet mesh "
+                            "needs yarns apart; correct the model with `textile-fenicsx solve --min-gap G` "
+                            "first, or mesh it with --kind voxel")
+    if g["gap"] < ACCEPT * gap:
+        if not shrink:
+            raise GeometryError(f"{a} and {b} are {g['gap']:.4f} mm apart at {where}, less than the gap the tet "
+                                f"mesh needs ({gap:.4f} mm): solve with `textile-fenicsx solve --min-gap {gap:.3g}`, "
+                                "or allow shrinking the sections (the volume lost is reported), or use --kind voxel")
+        # sections scaled by (1 - s) move each surface by about s x its half height: open the gap
+        info["shrink"] = float(min(0.5, (gap - g["gap"]) / height))
+        log.warning("tet: %s and %s are %.4f mm apart at %s: sections shrunk by %.2f %% to open a %.4f mm gap",
+                    a, b, g["gap"], where, 100 * info["shrink"], gap)
+    return info
+
+
+def _box(textile: Textile, options: TetOptions, gap: float, shrink: float) -> tuple[np.ndarray, np.ndarray]:
+    c = textile.cell
+    if options.z_range is not None:
+        z0, z1 = map(float, options.z_range)
+    else:
+        z0, z1 = np.inf, -np.inf
+        for i in range(len(textile.yarns)):  # sampled finer than the splines' points: they overshoot
+            sec = solids.yarn_sections(textile, i, options.spacing / 2, 4 * options.points, shrink)
+            z0, z1 = min(z0, sec[..., 2].min()), max(z1, sec[..., 2].max())
+        z0, z1 = z0 - gap / 2, z1 + gap / 2
+    return np.array([c.x0, c.y0, z0]), np.array([c.x0 + c.lx, c.y0 + c.ly, z1])
+
+
+def check_size(lo: np.ndarray, hi: np.ndarray, options: TetOptions) -> int:
+    """Refuse, before meshing, a size estimated to give more than max_elements tets or to need more
+    memory than the limit (memory.check; default: what the system has available). Returns the
+    estimate."""
+    from textile_fenicsx import memory
+
+    estimate = int(TETS_PER_VOLUME * float(np.prod(hi - lo)) / options.size**3)
+    if estimate > options.max_elements:
+        raise TextileError(f"tet size {options.size:g} mm would give about {estimate:.3g} tets, more than the limit "
+                           f"of {options.max_elements:.3g}; use a larger size")
+    memory.check(estimate * BYTES_PER_TET, what=f"tet size {options.size:g} mm would give about {estimate:.3g} "
+                 "tets and", hint="use a larger size", limit_gb=options.memory_limit)
+    return estimate
+
+
+def size_grid(textile: Textile, lo: np.ndarray, hi: np.ndarray, options: TetOptions, gap: float,
+              shrink: float, height: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """The element size on a grid of the box: grading x (distance to the nearest yarn + distance to
+    the nearest other yarn), in [gap / 2, size]. Distances are to the yarns' section points (and to
+    their images by the box's periods, z too), point-to-plane with the points' normals. Returns the
+    grid's axes and the sizes (nx, ny, nz)."""
+    H, c = options.size, options.grading
+    pts, nrm, lab = [], [], []
+    for i in range(len(textile.yarns)):
+        for sec in solids.chains(textile, i, lo, hi, options.spacing / 2, 2 * options.points, shrink, margin=1):
+            along = np.gradient(sec, axis=0)
+            around = np.roll(sec, -1, axis=1) - np.roll(sec, 1, axis=1)
+            n = np.cross(along, around)
+            n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+            pts.append(sec.reshape(-1, 3))
+            nrm.append(n.reshape(-1, 3))
+            lab.append(np.full(sec.shape[0] * sec.shape[1], i))
+    P, N, Lb = np.concatenate(pts), np.concatenate(nrm), np.concatenate(lab)
+    L = hi - lo
+    shifts = [np.array([a * L[0], b * L[1], e * L[2]]) for a in (-1, 0, 1) for b in (-1, 0, 1) for e in (-1, 0, 1)]
+    P = np.concatenate([P + s for s in shifts])
+    N, Lb = np.tile(N, (len(shifts), 1)), np.tile(Lb, len(shifts))
+    near = np.all((P > lo - H / c) & (P < hi + H / c), axis=1)
+    P, N, Lb = P[near], N[near], Lb[near]
+    step_xy, step_z = H / 3, max(min(H / 3, gap), H / 10)
+    steps = ((0, step_xy), (1, step_xy), (2, step_z))
+    axes = [np.linspace(lo[k], hi[k], max(int(np.ceil(L[k] / s)) + 1, 2)) for k, s in steps]
+    G = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    k = 16
+    d, j = cKDTree(P).query(G, k=k, distance_upper_bound=H / c, workers=options.threads)
+    found = np.isfinite(d)
+    j = np.minimum(j, len(P) - 1)
+    plane = np.abs(np.einsum("gkc,gkc->gk", G[:, None, :] - P[j], N[j]))
+    dist = np.where(found, np.minimum(d, np.maximum(plane, d - options.spacing)), np.inf)
+    lab_k = np.where(found, Lb[j], -1)
+    first = np.argmin(dist, axis=1)
+    d1 = dist[np.arange(len(G)), first]
+    other = found & (lab_k != lab_k[np.arange(len(G)), first][:, None])
+    d2 = np.where(other, dist, np.inf).min(axis=1)
+    d2 = np.where(other.any(axis=1), d2, np.where(found[:, -1], d[:, -1], np.inf))
+    h = np.clip(c * (d1 + d2), smallest(options, gap, height), H)
+    return axes, np.where(np.isfinite(h), h, H).reshape([len(a) for a in axes])
+
+
+def _background(axes: list[np.ndarray], h: np.ndarray, folder: str) -> None:
+    """The sizes as gmsh's background field: a Structured field (trilinear on the grid, read from a
+    text file in `folder`: origin, steps, counts, then the values with z fastest; a view of
+    hexahedra did the same 15 times slower)."""
+    import gmsh
+
+    path = Path(folder) / "sizes.txt"
+    with open(path, "w") as f:
+        f.write(" ".join(f"{a[0]:.17g}" for a in axes) + "\n")
+        f.write(" ".join(f"{a[1] - a[0]:.17g}" for a in axes) + "\n")
+        f.write(" ".join(str(len(a)) for a in axes) + "\n")
+        f.write("\n".join(f"{v:.6g}" for v in h.reshape(-1)) + "\n")
+    field = gmsh.model.mesh.field.add("Structured")
+    gmsh.model.mesh.field.setString(field, "FileName", str(path))
+    gmsh.model.mesh.field.setNumber(field, "TextFormat", 1)
+    gmsh.model.mesh.field.setAsBackgroundMesh(field)
+
+
+def _mesh_arrays(phase_of: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes (N, 3), tets (E, 4) and phases (E,) of the current gmsh model, positively oriented."""
+    import gmsh
+
+    tags, xyz, _ = gmsh.model.mesh.getNodes()
+    index = np.full(int(tags.max()) + 1, -1, np.int64)
+    index[tags.astype(np.int64)] = np.arange(len(tags))
+    points = xyz.reshape(-1, 3)
+    tets: list[np.ndarray] = []
+    phase: list[np.ndarray] = []
+    for vol, ph in sorted(phase_of.items()):
+        types, _, nodes = gmsh.model.mesh.getElements(3, vol)
+        for t, nd in zip(types, nodes):
+            if t != 4:
+                raise GeometryError(f"gmsh made elements of type {t} in volume {vol}, not linear tets")
+            tets.append(index[nd.astype(np.int64)].reshape(-1, 4))
+            phase.append(np.full(len(tets[-1]), ph, np.int32))
+    used, inverse = np.unique(np.concatenate(tets), return_inverse=True)
+    return points[used], inverse.reshape(-1, 4), np.concatenate(phase)
+
+
+def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
+              folder: str):
+    """Build, mesh and read back the model (gmsh initialised). Returns the arrays, box and pairs."""
+    import gmsh
+
+    t = time.perf_counter()
+    lo, hi = _box(textile, options, gap, shrink)
+    estimate = check_size(lo, hi, options)
+    phase_of = solids.build(textile, lo, hi, options.spacing, options.points, shrink)
+    times["solids_s"] = time.perf_counter() - t
+    log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
+             sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
+             times["solids_s"], estimate)
+    t = time.perf_counter()
+    pairs = solids.periodic_pairs(lo, hi, (0, 1, 2), PAIR_TOLERANCE * float(np.max(hi - lo)))
+    for _, slaves, masters, shift, _ in pairs:
+        affine = np.eye(4)
+        affine[:3, 3] = shift
+        gmsh.model.mesh.setPeriodic(2, slaves, masters, affine.ravel().tolist())
+    axes, h = size_grid(textile, lo, hi, options, gap, shrink, height)
+    _background(axes, h, folder)
+    times["sizes_s"] = time.perf_counter() - t
+    log.info("tet: periodic faces %s, sizes on a %s grid (least %.4f mm), %.1f s",
+             [len(p[1]) for p in pairs], "x".join(map(str, h.shape)), h.min(), times["sizes_s"])
+    for name, value in (("Mesh.MeshSizeExtendFromBoundary", 0), ("Mesh.MeshSizeFromPoints", 0),
+                        ("Mesh.MeshSizeFromCurvature", options.curvature), ("Mesh.MeshSizeMax", options.size),
+                        ("Mesh.MeshSizeMin", smallest(options, gap, height)), ("Mesh.Algorithm", 6),
+                        ("Mesh.Algorithm3D", 1),
+                        ("Mesh.Optimize", 1)):
+        gmsh.option.setNumber(name, value)
+    t = time.perf_counter()
+    gmsh.model.mesh.generate(2)
+    times["surfaces_s"] = time.perf_counter() - t
+    log.info("tet: surface mesh %.1f s", times["surfaces_s"])
+    t = time.perf_counter()
+    gmsh.model.mesh.generate(3)
+    for method in OPTIMISE:
+        gmsh.model.mesh.optimize(method)
+    times["volume_s"] = time.perf_counter() - t
+    log.info("tet: volume mesh and optimisation %.1f s", times["volume_s"])
+    return _mesh_arrays(phase_of), lo, hi, pairs
+
+
+def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Comm = MPI.COMM_WORLD) -> TetMesh | None:
+    """The cell's conforming periodic tet mesh (on rank 0; None on the other ranks). Raises the same
+    TextileError on every rank if the model is refused or gmsh fails (never hangs)."""
+    result, error = None, None
+    if comm.rank == 0:
+        try:
+            result = _tet_mesh(textile, options)
+        except TextileError as e:
+            error = e
+        except Exception as e:  # gmsh's own errors, reported on every rank
+            error = GeometryError(f"gmsh could not make the tet mesh of {textile.name!r}: {e}")
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return result
+
+
+def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
+    import gmsh
+
+    start = time.perf_counter()
+    if not textile.cell.periodic:
+        raise TextileError(f"{textile.name!r}: a tet mesh is made of a periodic cell; this one has free edges")
+    height = thinnest_height(textile)
+    gap = default_gap(textile, options)
+    contact = check_contacts(textile, gap, options.shrink)
+    shrink = contact["shrink"]
+    times: dict[str, float] = {}
+    initialised = gmsh.isInitialized()
+    if not initialised:
+        gmsh.initialize(interruptible=False)
+    added = False
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.NumThreads", min(int(options.threads), 2))
+        gmsh.option.setNumber("Geometry.OCCParallel", 1)
+        gmsh.model.add(f"tet-{textile.name}")
+        added = True
+        with tempfile.TemporaryDirectory(prefix="tet-sizes-") as folder:
+            (points, tets, phase), lo, hi, pairs = _generate(textile, options, gap, shrink, height, times, folder)
+        elements = gmsh.model.mesh.getElementsByType(4)[0]
+        quality = gmsh.model.mesh.getElementQualities(elements, "minSICN")
+        gamma = gmsh.model.mesh.getElementQualities(elements, "gamma")
+    finally:
+        if added:
+            gmsh.model.remove()
+        if not initialised:
+            gmsh.finalize()
+    t = time.perf_counter()
+    snapped = _snap_periodic(points, lo, hi)
+    vol = checks.signed_volumes(points, tets)
+    flip = vol < 0
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    vol = np.abs(vol)
+    if vol.min() <= 1e-12 * float(np.prod(hi - lo)):
+        k = int(np.argmin(vol))
+        where = ", ".join(f"{v:.3f}" for v in points[tets[k]].mean(axis=0))
+        raise GeometryError(f"the tet mesh of {textile.name!r} has a flat tet at ({where}) mm "
+                            f"(volume {vol[k]:.2g} mm^3)")
+    fibre = np.zeros((len(tets), 3))
+    centroids = points[tets].mean(axis=1)
+    for i in range(len(textile.yarns)):
+        k = phase == i + 1
+        if np.any(k):
+            fibre[k] = textile.fibre_direction(i, centroids[k])
+    mesh = TetMesh(points, tets, phase, fibre, lo, hi, ["matrix"] + [y.name for y in textile.yarns])
+    mesh.report = _report(textile, mesh, vol, quality, gamma, contact, gap, options, times, pairs, flip)
+    mesh.report["periodicity"]["snapped_mm"] = snapped
+    times["checks_s"] = time.perf_counter() - t
+    mesh.report["times_s"] = {**times, "total": time.perf_counter() - start}
+    r = mesh.report
+    log.info("tet: %d tets, %d nodes, quality (minSICN) min %.3f mean %.3f, yarn volume error worst %.2f %%, "
+             "periodic %s, %.1f s", r["elements"], r["nodes"], r["quality"]["min"], r["quality"]["mean"],
+             r["volume"]["worst_error_percent"], r["periodicity"]["periodic"], r["times_s"]["total"])
+    return mesh
+
+
+def _snap_periodic(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """Put every node of a + face exactly on the image of its - face partner (gmsh places the
+    copies it makes on the + face's own geometry, which OCC cut to about 1e-7 mm of the - face's
+    moved). Returns the largest move [mm]; a node with no partner within 1e-5 of the cell's size
+    is left (the periodicity check reports it)."""
+    eps = 1e-9 * float(np.max(hi - lo))
+    worst = 0.0
+    for ax in range(3):
+        plus = np.flatnonzero(np.abs(points[:, ax] - hi[ax]) <= 1e3 * eps)
+        minus = np.flatnonzero(np.abs(points[:, ax] - lo[ax]) <= 1e3 * eps)
+        if not len(plus) or not len(minus):
+            continue
+        shift = np.zeros(3)
+        shift[ax] = hi[ax] - lo[ax]
+        points[minus, ax] = lo[ax]
+        points[plus, ax] = hi[ax]
+        d, j = cKDTree(points[minus]).query(points[plus] - shift)
+        ok = d <= 1e4 * eps
+        worst = max(worst, float(d[ok].max(initial=0.0)))
+        points[plus[ok]] = points[minus[j[ok]]] + shift
+    return worst
+
+
+def model_volumes(textile: Textile, n: int = 400) -> np.ndarray:
+    """Each yarn's volume in the cell [mm^3], by the model's vertical rays on an n x n grid."""
+    from textile_fenicsx.metrics import measure
+
+    return np.array(measure(textile, n=n)["yarn_volume"]["per_yarn"])
+
+
+def _report(textile, mesh, vol, quality, gamma, contact, gap, options, times, pairs, flipped) -> dict:
+    names = mesh.names
+    meshed = np.bincount(mesh.phase, weights=vol, minlength=len(names))
+    # the model's volumes: of the shrunk sections when the last resort was used
+    model = model_volumes(textile)
+    scale = (1 - contact["shrink"]) ** 2
+    errors = (meshed[1:] - model * scale) / (model * scale) * 100
+    angles = checks.fibre_angles(textile, mesh.points, mesh.tets, mesh.phase, mesh.fibre)
+    return {
+        "kind": "tet",
+        "elements": int(len(mesh.tets)),
+        "nodes": int(len(mesh.points)),
+        "box_mm": {"lo": mesh.lo.tolist(), "hi": mesh.hi.tolist()},
+        "size_mm": options.size,
+        "quality": {"measure": "minSICN", "min": float(quality.min()), "mean": float(quality.mean()),
+                    "below_0.1": int(np.sum(quality < 0.1)), "gamma_min": float(gamma.min()),
+                    "gamma_mean": float(gamma.mean())},
+        "inverted_by_gmsh": int(flipped.sum()),
+        "smallest_volume_mm3": float(vol.min()),
+        "policy": {"name": "gap" if not contact["shrink"] else "shrink",
+                   "gap_mm": gap, "least_gap_in_model_mm": contact["least_gap_mm"],
+                   "closest_pair": [names[1 + k] for k in contact["pair"]] if contact["pair"] else None,
+                   "closest_at_mm": contact["at_mm"], "thinnest_height_mm": contact["thinnest_height_mm"],
+                   "shrink_fraction": contact["shrink"],
+                   "volume_lost_percent": float(100 * (1 - scale)) if contact["shrink"] else 0.0},
+        "volume": {"per_yarn": [{"yarn": names[1 + i], "meshed_mm3": float(meshed[1 + i]), "model_mm3": float(model[i]),
+                                 "error_percent": float(errors[i])} for i in range(len(model))],
+                   "matrix_mm3": float(meshed[0]), "box_mm3": float(np.prod(mesh.hi - mesh.lo)),
+                   "worst_error_percent": float(np.max(np.abs(errors))) if len(errors) else 0.0},
+        "fibre_angle_deg": {"p99": float(np.percentile(angles, 99)) if len(angles) else 0.0,
+                            "max": float(angles.max()) if len(angles) else 0.0,
+                            "within_2deg": float(np.mean(angles <= 2.0)) if len(angles) else 1.0},
+        "phases": checks.phase_mismatch(textile, mesh.points, mesh.tets, mesh.phase),
+        "periodicity": {**periodic_mismatch(mesh.points, Box(tuple(mesh.lo), tuple(mesh.hi))),
+                        "face_pairs": {"xyz"[p[0]]: len(p[1]) for p in pairs}},
+    }
+
+
+def write_msh(mesh: TetMesh, path: str | Path) -> Path:
+    """Write the mesh as gmsh's .msh 4.1 at `path`: one discrete volume and one named physical group
+    per phase ("matrix", then the yarns' names; group tag = phase + 1), nodes and tets as in `mesh`
+    (node k has tag k + 1). Call it on the rank that holds the mesh."""
+    import gmsh
+
+    path = Path(path)
+    initialised = gmsh.isInitialized()
+    if not initialised:
+        gmsh.initialize(interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("tet-write")
+        order = np.argsort(mesh.phase, kind="stable")
+        first = True
+        for ph, name in enumerate(mesh.names):
+            k = order[mesh.phase[order] == ph]
+            if not len(k):
+                continue
+            vol = gmsh.model.addDiscreteEntity(3)
+            if first:  # every node on the first volume
+                gmsh.model.mesh.addNodes(3, vol, np.arange(1, len(mesh.points) + 1), mesh.points.ravel())
+                first = False
+            start = int(np.sum(mesh.phase < ph)) + 1
+            gmsh.model.mesh.addElementsByType(vol, 4, np.arange(start, start + len(k)), (mesh.tets[k] + 1).ravel())
+            gmsh.model.addPhysicalGroup(3, [vol], ph + 1, name=name)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.option.setNumber("Mesh.Binary", 1)
+        gmsh.write(str(path))
+    finally:
+        gmsh.model.remove()
+        if not initialised:
+            gmsh.finalize()
+    return path

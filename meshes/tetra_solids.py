@@ -1,0 +1,180 @@
+"""The yarn solids of a tet mesh in gmsh's OpenCASCADE kernel (meshes/tetra.py drives it).
+
+Each yarn is a chain of its section polygons along its centreline. A periodic yarn's chain is its
+stations over whole periods, one chain per lateral copy (a shift by the cell's vectors that is not
+along the yarn) that reaches the box, trimmed to the stations that reach it plus a few; a piece
+(a yarn that is not periodic) is repeated by the cell's vectors. Every station is one closed
+spline through its section points, and a chain the solid through them with ruled faces between
+consecutive stations (`addThruSections`, makeRuled): a ruled face depends on its two stations only,
+so a chain is exactly periodic, and the box cuts a yarn at x0 and at x0 + lx in the very same
+curves moved by the cell vector (a smooth skin through all the stations is fitted globally: the
+two cuts of the plain weave differed by 0.7 % in area). Each chain is intersected with the box
+alone (its pieces are what of the yarn lies in the cell: the parts that leave through a side are
+the next copy's coming back through the opposite one), then the box is fragmented by all the
+pieces with OCC's glue option (the pieces do not cross the box's faces, they lie on them: 29 s on
+the satin instead of 48 s without). OCC still searches every face of a yarn against the faces of
+the yarns near it for intersections (there are none: meshes/tetra.py holds a gap between them);
+that search is most of the time.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from textile_fenicsx.textile import Textile
+
+log = logging.getLogger(__name__)
+
+# Stations a periodic yarn's chain goes on beyond the box at each end.
+MARGIN = 6
+# OCC's glue option for the last fragment (1: the arguments do not intersect, they only touch:
+# the pieces lie in the box and touch its sides)
+GLUE = 1
+# A station closer than this fraction of the spacing to a side of the box it crosses is left out.
+BESIDE = 0.4
+
+
+def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink: float = 0.0) -> np.ndarray:
+    """Yarn i's section polygons (M, points, 3) [mm] at stations at most `spacing` mm apart over its
+    master nodes (one period of a periodic yarn: its last section is exactly its first moved by the
+    period); each section scaled about its centreline point by (1 - shrink) (0: as modelled)."""
+    yarn = textile.yarns[i]
+    s = yarn.stations(spacing, minimum_per_segment=1)
+    pos, _, up, side = yarn.frames(s)
+    sec = yarn.section_points(s, points) * (1.0 - shrink)
+    out = pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+    if yarn.periodic:
+        out[-1] = out[0] + yarn.period
+    return out
+
+
+def add_skin(sections: np.ndarray, name: str) -> int:
+    """The solid through the section polygons (M, K, 3) (its OCC tag): one closed C2 spline per
+    station, a smooth skin through them, capped by the first and last sections."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    wires = []
+    for poly in sections:
+        tags = [occ.addPoint(*p) for p in poly]
+        wires.append(occ.addWire([occ.addSpline(tags + tags[:1])]))
+    vols = [t for d, t in occ.addThruSections(wires, makeSolid=True, makeRuled=True) if d == 3]
+    if len(vols) != 1:
+        raise RuntimeError(f"the skin of {name} gave {len(vols)} solids")
+    return vols[0]
+
+
+def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
+           shrink: float = 0.0, margin: int = MARGIN) -> list[np.ndarray]:
+    """Yarn i's copies over the box [lo, hi]: section polygons (M, K, 3) [mm] per copy. A periodic
+    yarn's copy is a chain of its periods, one per lateral shift by the cell's vectors, trimmed to
+    the stations whose sections reach the box plus `margin` stations at each end (so that the box
+    cuts its skin where the ends no longer shape it); a piece's copies are the piece moved by the
+    cell's vectors."""
+    yarn = textile.yarns[i]
+    one = yarn_sections(textile, i, spacing, points, shrink)
+    L = hi - lo
+    cellv = np.array([[L[0], 0.0, 0.0], [0.0, L[1], 0.0]])
+    span = 3
+    shifts: dict[tuple, np.ndarray] = {}
+    for a in range(-span, span + 1):
+        for b in range(-span, span + 1):
+            t = a * cellv[0] + b * cellv[1]
+            if yarn.periodic:  # a shift along the yarn is the same chain
+                P = yarn.period
+                t = t - np.round(t @ P / (P @ P)) * P
+            shifts.setdefault(tuple(np.round(t, 9)), t)
+    if yarn.periodic:
+        P = yarn.period
+        reach = int(np.ceil(float(np.linalg.norm(L[:2])) / max(float(np.linalg.norm(P[:2])), 1e-9))) + 2
+        one = np.concatenate([one[:-1] + k * P for k in range(-reach, reach)] + [one[-1:] + (reach - 1) * P])
+    out = []
+    for t in shifts.values():
+        sec = one + t
+        smin, smax = sec.min(axis=1), sec.max(axis=1)
+        meets = np.flatnonzero(np.all((smax[:, :2] >= lo[:2]) & (smin[:, :2] <= hi[:2]), axis=1))
+        if len(meets) == 0:
+            continue
+        if yarn.periodic:
+            sec = sec[max(meets[0] - margin, 0):meets[-1] + margin + 1]
+            # no station just beside a side of the box that the yarn runs through: the box would cut
+            # its ruled face into a thin strip (a sliver tet on the plain weave, 0.07 mm from y1)
+            centre = sec.mean(axis=1)
+            near = np.zeros(len(sec), bool)
+            for ax in (0, 1):
+                if abs(yarn.period[ax]) > 1e-9:
+                    r = (centre[:, ax] - lo[ax]) / L[ax]
+                    near |= np.abs(r - np.round(r)) * L[ax] < BESIDE * spacing
+            near[[0, -1]] = False
+            sec = sec[~near]
+        out.append(sec)
+    return out
+
+
+def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
+          shrink: float = 0.0) -> dict[int, int]:
+    """The model of the box [lo, hi] with every yarn's pieces in it, fragmented into one
+    conforming model (gmsh must be initialised, a model current). Returns volume tag -> phase
+    (0 the matrix, 1 + i yarn i)."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    pieces = []
+    for i in range(len(textile.yarns)):
+        for sections in chains(textile, i, lo, hi, spacing, points, shrink):
+            solid = add_skin(sections, textile.yarns[i].name)
+            cut, _ = occ.intersect([(3, solid)], [(3, occ.addBox(*lo, *(hi - lo)))])
+            pieces += [(i, t) for d, t in cut if d == 3]
+    glue = gmsh.option.getNumber("Geometry.OCCBooleanGlue")
+    gmsh.option.setNumber("Geometry.OCCBooleanGlue", GLUE)
+    try:
+        _, parts = occ.fragment([(3, occ.addBox(*lo, *(hi - lo)))], [(3, t) for _, t in pieces])
+    finally:
+        gmsh.option.setNumber("Geometry.OCCBooleanGlue", glue)
+    occ.synchronize()
+    phase = {t: 0 for _, t in parts[0]}
+    for (i, _), part in zip(pieces, parts[1:]):
+        for _, t in part:
+            phase[t] = i + 1
+    return phase
+
+
+def periodic_pairs(lo: np.ndarray, hi: np.ndarray, axes: tuple[int, ...], tol: float) -> list:
+    """(axis, slave faces, master faces, shift, worst) per periodic axis: each face on the box's +
+    side matched to the face on its - side whose bounding box, moved by the box's length along the
+    axis, is nearest (within tol [mm]; worst: the largest such distance). OCC's boxes of spline
+    faces are loose (and its masses of spline solids off by up to 15 %: not a key), but the same
+    cut moved by the cell vector has the same box to round-off."""
+    import gmsh
+
+    out = []
+    window = 1e-5 * float(np.max(hi - lo))
+    def on(ax: int, value: float) -> list[int]:
+        a, b = lo - window, hi + window
+        a[ax], b[ax] = value - window, value + window
+        return [t for _, t in gmsh.model.getEntitiesInBoundingBox(*a, *b, 2)]
+
+    for ax in axes:
+        minus, plus = on(ax, lo[ax]), on(ax, hi[ax])
+        shift = np.zeros(3)
+        shift[ax] = hi[ax] - lo[ax]
+        key = {t: np.array(gmsh.model.getBoundingBox(2, t)) for t in minus + plus}
+        slaves, masters, worst = [], [], 0.0
+        for t in plus:
+            want = key[t] - np.r_[shift, shift]
+            best = min(minus, key=lambda m: np.abs(key[m] - want).max(), default=None)
+            miss = np.inf if best is None else float(np.abs(key[best] - want).max())
+            if miss > tol:
+                raise RuntimeError(f"face {t} on the + side along {'xyz'[ax]} has no image on the - side "
+                                   f"(nearest differs by {miss:.2g} mm)")
+            worst = max(worst, miss)
+            slaves.append(t)
+            masters.append(best)
+        if len(set(masters)) != len(masters) or len(masters) != len(minus):
+            raise RuntimeError(f"the faces of the two sides along {'xyz'[ax]} do not pair up "
+                               f"({len(plus)} + faces, {len(minus)} - faces)")
+        log.debug("periodic along %s: %d face pairs, boxes within %.1e mm", "xyz"[ax], len(slaves), worst)
+        out.append((ax, slaves, masters, shift, worst))
+    return out

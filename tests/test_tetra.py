@@ -1,0 +1,138 @@
+"""The conforming periodic tet mesh (meshes/tetra.py) and the solve's least gap (--min-gap)."""
+
+import numpy as np
+import pytest
+
+from textile_fenicsx.config import load_model
+from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.meshes import tetra_checks as checks
+from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh, write_msh
+from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+from textile_fenicsx.solver import SolverOptions
+
+GAP = 0.04  # the least gap the small case is solved and meshed with [mm]
+
+
+def _grid_box(n=5):
+    x = np.linspace(0.0, 2.0, n)
+    y = np.linspace(-1.0, 1.0, n)
+    z = np.linspace(0.0, 0.5, n)
+    grid = np.stack(np.meshgrid(x, y, z, indexing="ij"), -1).reshape(-1, 3)
+    return grid, np.array([0, -1, 0.0]), np.array([2, 1, 0.5])
+
+
+@pytest.mark.serial
+def test_periodic_images_good_and_broken():
+    points, lo, hi = _grid_box()
+    assert periodic_mismatch(points, Box(tuple(lo), tuple(hi)))["periodic"]
+    moved = points.copy()
+    k = np.flatnonzero((moved[:, 0] == 2.0) & (moved[:, 1] == 0.0) & (moved[:, 2] == 0.25))[0]
+    moved[k, 1] += 1e-7  # 5e-8 of the cell: beyond 1e-10
+    report = periodic_mismatch(moved, Box(tuple(lo), tuple(hi)))
+    assert not report["periodic"] and report["x"]["missing"] == 1 and report["y"]["missing"] == 0
+    fewer = np.delete(points, np.flatnonzero(points[:, 2] == 0.0)[0], axis=0)
+    report = periodic_mismatch(fewer, Box(tuple(lo), tuple(hi)))
+    assert not report["periodic"] and report["z"]["minus"] == report["z"]["plus"] - 1
+
+
+@pytest.mark.serial
+def test_signed_volumes_orientation():
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    assert checks.signed_volumes(points, np.array([[0, 1, 2, 3]]))[0] == pytest.approx(1 / 6)
+    assert checks.signed_volumes(points, np.array([[0, 2, 1, 3]]))[0] == pytest.approx(-1 / 6)
+
+
+@pytest.mark.mpi
+def test_overlapping_model_refused(reference_dir, comm):
+    """TexGen's idealised plain weave overlaps: refused on every rank, naming the pair and the place."""
+    textile = load_model(reference_dir / "models" / "plain.tg3")
+    with pytest.raises(GeometryError) as err:
+        tet_mesh(textile, TetOptions(size=0.5), comm)
+    message = str(err.value)
+    assert "overlap at (" in message and " mm deep" in message and "solve --min-gap" in message
+    assert "--kind voxel" in message
+    names = [y.name for y in textile.yarns]
+    assert sum(name in message for name in names) >= 2
+
+
+@pytest.mark.serial
+def test_options_checked():
+    with pytest.raises(TextileError, match="tet size"):
+        TetOptions(size=-1)
+    with pytest.raises(TextileError, match="min_gap"):
+        SolverOptions(min_gap=-0.1)
+    with pytest.raises(TextileError, match="exact"):
+        SolverOptions(method="penalty", min_gap=0.01)
+
+
+@pytest.fixture(scope="module")
+def loose_plain(reference_dir):
+    """A loose plain weave corrected with the least gap GAP (and without: `touching`)."""
+    from textile_fenicsx.api import solve
+
+    textile = load_model(reference_dir / "fabrics" / "plain_w0.6_h0.2_ellipse.tg3")
+    gapped = solve(textile, seed=0.5, solver=SolverOptions(min_gap=GAP)).corrected
+    touching = solve(textile, seed=0.5).corrected
+    return gapped, touching
+
+
+@pytest.mark.mpi
+def test_min_gap_holds(loose_plain):
+    """The solve keeps the yarns at least about the gap apart (vertical rays; between the contact
+    nodes the gap may dip by the P2 field's error)."""
+    gapped, touching = loose_plain
+    assert checks.yarn_gaps(gapped)["gap"] >= 0.95 * GAP
+    assert checks.yarn_gaps(touching)["gap"] < 0.5 * GAP
+
+
+@pytest.mark.mpi
+def test_touching_model_refused(loose_plain, comm):
+    _, touching = loose_plain
+    with pytest.raises(GeometryError, match="--min-gap"):
+        tet_mesh(touching, TetOptions(size=0.5, gap=GAP), comm)
+
+
+@pytest.mark.mpi
+def test_small_mesh(loose_plain, comm, mpi_tmp_path):
+    """The corrected loose plain weave at a coarse size: periodic nodes, no inverted or empty tet,
+    phases consistent with the model, yarn volumes within 1 %, quality above the stated bound,
+    fibre directions on the path; written as .msh with one named group per phase."""
+    gapped, _ = loose_plain
+    mesh = tet_mesh(gapped, TetOptions(size=0.3, gap=GAP), comm)
+    if comm.rank != 0:
+        assert mesh is None
+        return
+    r = mesh.report
+    assert r["periodicity"]["periodic"] and r["periodicity"]["x"]["plus"] > 0 and r["periodicity"]["z"]["plus"] > 0
+    vol = checks.signed_volumes(mesh.points, mesh.tets)
+    assert vol.min() > 0
+    assert r["quality"]["min"] >= 0.02
+    assert r["volume"]["worst_error_percent"] < 1.0
+    assert r["phases"]["in_two_yarns"] == 0
+    assert r["phases"]["volume"] < 0.01 * sum(v["model_mm3"] for v in r["volume"]["per_yarn"])
+    assert r["fibre_angle_deg"]["within_2deg"] >= 0.99
+    assert set(np.unique(mesh.phase)) == set(range(len(mesh.names)))
+    path = write_msh(mesh, mpi_tmp_path / "volume.msh")
+    import meshio
+
+    back = meshio.read(path)
+    assert len(back.points) == len(mesh.points)
+    assert sum(len(c.data) for c in back.cells if c.type == "tetra") == len(mesh.tets)
+    assert set(back.field_data) == set(mesh.names)
+
+
+@pytest.mark.sweep
+@pytest.mark.serial
+def test_tet_family(tmp_path):
+    """Every fabric of the sweep whose solve (with the tet policy's least gap) passes its check is
+    tet-meshed: periodic, no inverted tet, yarn volumes within 1 % (bench/tet_sweep.py; hours)."""
+    import importlib.util
+
+    from conftest import REPO
+
+    spec = importlib.util.spec_from_file_location("tet_sweep", REPO / "bench" / "tet_sweep.py")
+    sweep = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sweep)
+    records = [sweep.run_case(name, 0.25) for name in sweep.cases()]
+    failed = [r["case"] for r in records if r.get("solve") == 0 and not r.get("passed")]
+    assert not failed, sweep.table(records)
