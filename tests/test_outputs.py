@@ -59,8 +59,10 @@ def test_correction_of_a_manufactured_lift_and_twist(satin_run):
     w.interpolate(lambda x: a + b * (x[1] - y_c))
     from textile_fenicsx.correct import corrected_yarn
 
+    from textile_fenicsx.stations import stations
+
     new = corrected_yarn(t, i, w, spacing=0.25, n_points=24, section_tol=0.0)  # every station's section
-    s = yarn.stations(0.25)
+    s = stations(yarn, 0.25)
     pos, _, up, side = yarn.frames(s)
     assert np.allclose(new.nodes, pos + [0, 0, a], atol=1e-12)
     old = yarn.section_points(s, 24)

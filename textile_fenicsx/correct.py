@@ -20,6 +20,7 @@ import numpy as np
 from textile_fenicsx.errors import GeometryError, TextileError, check_positive
 from textile_fenicsx.fields import evaluate
 from textile_fenicsx.sections import Polygon
+from textile_fenicsx.stations import stations
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
 
@@ -119,12 +120,12 @@ class _Crowns:
 def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32,
                    section_tol: float | None = None) -> Yarn:
     """Yarn i moved by its displacement: w, a Function on its mid-surface (or, for a yarn cut
-    into crowns, a _Crowns of their Functions). Its sections are kept where the blend of their
+    into crowns, a _Crowns of their Functions), at stations (stations.py). Its sections are kept where the blend of their
     neighbours misses them by more than section_tol [mm] (default SECTION_TOL of the height;
     0 keeps every station's)."""
     yarn = textile.yarns[i]
     w = w if isinstance(w, _Crowns) else _Whole(w, textile.cell)
-    s = yarn.stations(spacing)
+    s = stations(yarn, spacing)
     pos, _, up, side = yarn.frames(s)
     sec = yarn.section_points(s, n_points)
     # section coordinates in the unrotated frame (side0 horizontal): (u0 across, v0 up)
