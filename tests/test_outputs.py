@@ -140,6 +140,73 @@ def test_binder_legs_shortened_in_the_correction_do_not_fold(reference_dir, comm
         assert after.per_length == pytest.approx(before.per_length, rel=2e-3)
 
 
+@pytest.mark.mpi
+def test_a_yarn_at_the_node_limit_is_corrected_into_a_model_that_reads_back(reference_dir, comm, mpi_tmp_path,
+                                                                           caplog):
+    # issue 27, item 5: a yarn of 2000 master nodes (the input limit) is read and solved; its
+    # corrected yarn, one master node per station, had 7997 and the outputs could not be read back
+    # ("MasterNode elements: 7997 is more than the limit of 2000"; or, with fewer sections kept,
+    # "position sections: 3426 is more than the limit of 2000" before anything was written). What
+    # we write must fit what we read back: here 2000 stations, one per segment; and where the
+    # stations asked for are more (a correction spacing of 1 um on every yarn), at most 2000 are
+    # spread over the yarn, with a warning naming the yarn, the quantity and the bound
+    import logging
+
+    from scipy.spatial import cKDTree
+
+    from textile_fenicsx import limits
+    from textile_fenicsx.config import load_model, save_model
+    from textile_fenicsx.correct import corrected_textile
+    from textile_fenicsx.textile import Textile
+    from textile_fenicsx.tg3 import write_tg3
+    from textile_fenicsx.yarn import Yarn
+
+    t = read_tg3(reference_dir / "models" / "plain.tg3")
+    y = t.yarns[0]
+    nodes = y.centreline(np.linspace(0, y.n_segments, limits.MAX_NODES_PER_YARN))[0]
+    dense = Yarn(nodes, y.section, "cubic", y.periodic, y.repeats, name="dense warp")
+    model = Textile(t.cell, [dense] + t.yarns[1:], name="dense", resolution=t.resolution)
+    model.check_size()  # accepted on input
+    lift = _constant_displacements(model, [0.01] * 4, comm)
+    with caplog.at_level(logging.WARNING, logger="textile_fenicsx.correct"):
+        corrected = corrected_textile(model, lift, 0.25, 64)
+        assert not caplog.records
+        fine = corrected_textile(model, lift, 0.001, 32)
+    assert len(corrected.yarns[0].nodes) == limits.MAX_NODES_PER_YARN
+    assert [len(c.nodes) for c in fine.yarns] == [limits.MAX_NODES_PER_YARN] * 4
+    path = cKDTree(dense.centreline(np.linspace(0, dense.n_segments, 160001))[0] + [0, 0, 0.01])  # 5e-5 mm apart
+    assert np.max(path.query(fine.yarns[0].centreline(np.linspace(0, 1999, 8001))[0])[0]) < 5e-5
+    if comm.rank == 0:
+        warned = [r.getMessage() for r in caplog.records]
+        assert len(warned) == 4 and warned[0].startswith("dense warp: corrected at 2000 stations")
+        assert "at most 2000 per yarn" in warned[0]
+        for m in (corrected, fine):
+            write_tg3(m, mpi_tmp_path / "corrected.tg3")
+            save_model(m, mpi_tmp_path / "corrected.json")
+            for back in (read_tg3(mpi_tmp_path / "corrected.tg3"), load_model(mpi_tmp_path / "corrected.json")):
+                assert [len(b.nodes) for b in back.yarns] == [len(c.nodes) for c in m.yarns]
+
+
+@pytest.mark.serial
+def test_the_stations_of_every_yarn_fit_the_bounds_a_model_is_read_back_with(reference_dir, monkeypatch):
+    # item 5: the corrected model's master nodes in all (and its surface points, 4 stations per
+    # segment of the section points) are bounded as a read model's are: every yarn's share is cut
+    # in proportion when the stations asked for are more
+    from textile_fenicsx import limits
+    from textile_fenicsx.stations import budgets, stations
+
+    t = read_tg3(reference_dir / "models" / "satin4.tg3")
+    wanted = [len(stations(y, 0.25)) for y in t.yarns]
+    assert budgets(t.yarns, 0.25, 64) == [None] * 8
+    monkeypatch.setattr(limits, "MAX_NODES", sum(wanted) // 2)
+    cut = budgets(t.yarns, 0.25, 64)
+    assert sum(cut) <= sum(wanted) // 2 and all(c < w for c, w in zip(cut, wanted))
+    assert all(len(stations(y, 0.25, c)) == c for y, c in zip(t.yarns, cut))
+    monkeypatch.undo()
+    fine = budgets(t.yarns, 0.01, 4096)  # 4096 points a section: 8 x 1100 stations would be 1.4e8 points
+    assert None not in fine and sum(fine) * 4 * 4096 <= limits.MAX_SURFACE_POINTS
+
+
 def _png_size(path) -> tuple[int, int]:
     """(width, height) of a PNG, from its header (the IHDR chunk)."""
     data = path.read_bytes()[:24]

@@ -11,22 +11,27 @@ plane, the literal reading of DESIGN.md, collapses sections there (they lay alon
 Bent with the plate across its width a section's centroid leaves the path: the path is then moved
 onto the centroids, and the sections cut anew from the same surface normal to it (_centred), so
 that a yarn holds its sections' area per length of its path. The corrected yarn is a periodic
-cubic through the moved stations (stations.py: closer where the path turns) with one polygon
-section per station, so every query, metric and export of the model works on it.
+cubic through the moved stations (stations.py: closer where the path turns, at most as many as a
+model may have master nodes) with one polygon section per station, so every query, metric and
+export of the model works on it.
 """
 
 
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from textile_fenicsx.errors import GeometryError, TextileError, check_positive
 from textile_fenicsx.fields import evaluate
+from textile_fenicsx.limits import MAX_NODES, MAX_NODES_PER_YARN, MAX_SURFACE_POINTS
 from textile_fenicsx.sections import Polygon
-from textile_fenicsx.stations import stations
-from textile_fenicsx.textile import Cell, Textile
+from textile_fenicsx.stations import budgets, stations
+from textile_fenicsx.textile import Cell, Resolution, Textile
 from textile_fenicsx.verify import self_intersecting
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -159,14 +164,14 @@ class _Crowns:
 
 
 def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32,
-                   section_tol: float | None = None) -> Yarn:
+                   section_tol: float | None = None, most: int | None = None) -> Yarn:
     """Yarn i moved by its displacement: w, a Function on its mid-surface (or, for a yarn cut
-    into crowns, a _Crowns of their Functions), at stations (stations.py). Its sections are kept where the blend of their
-    neighbours misses them by more than section_tol [mm] (default SECTION_TOL of the height;
-    0 keeps every station's)."""
+    into crowns, a _Crowns of their Functions), at stations (stations.py; at most `most`). Its
+    sections are kept where the blend of their neighbours misses them by more than section_tol
+    [mm] (default SECTION_TOL of the height; 0 keeps every station's)."""
     yarn = textile.yarns[i]
     w = w if isinstance(w, _Crowns) else _Whole(w, textile.cell)
-    s = stations(yarn, spacing)
+    s = stations(yarn, spacing, most)
     pos, _, up, side = yarn.frames(s)
     sec = yarn.section_points(s, n_points)
     # section coordinates in the unrotated frame (side0 horizontal): (u0 across, v0 up)
@@ -377,7 +382,15 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
                 if displacements[crown.yarn] is None:
                     displacements[crown.yarn] = _Crowns(textile.yarns[crown.yarn], [], textile.cell)
                 displacements[crown.yarn].pieces.append((crown, w[k], split.plate.yarns[k]))
-    yarns = [corrected_yarn(textile, i, wi, spacing, n_points) for i, wi in enumerate(displacements)]
+    most = budgets(textile.yarns, spacing, n_points)
+    for y, bound in zip(textile.yarns, most):
+        if bound is not None:
+            log.warning("%s: corrected at %d stations, %.3g mm apart on average instead of at most %g mm: the "
+                        "corrected yarn has a master node at each, and a model is read back with at most %d per "
+                        "yarn, %d in all and %.3g surface points (limits.py)", y.name, bound,
+                        y.length() / (bound - 1), spacing, MAX_NODES_PER_YARN, MAX_NODES, MAX_SURFACE_POINTS)
+    yarns = [corrected_yarn(textile, i, wi, spacing, n_points, most=bound)
+             for i, (wi, bound) in enumerate(zip(displacements, most))]
     c = textile.cell
     z = np.concatenate([y.nodes[:, 2] for y in yarns])
     heights = [max(s.height for s in y.section.sections()) for y in yarns]
@@ -386,4 +399,17 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
     # its surfaces need no finer stations than its own (one polygon per station of the correction)
     resolution = replace(textile.resolution, spacing=max(textile.resolution.spacing, spacing),
                          section_points=n_points)
-    return Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution)
+    corrected = Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution)
+    readable(corrected)
+    return corrected
+
+
+def readable(textile: Textile) -> None:
+    """Refuse (GeometryError naming the yarn, the quantity and the bound) a model the pipeline made
+    that its readers would refuse: as a .tg3 (read with the default resolution) or as our model
+    file (with its own). budgets() keeps corrected models within; this says where one is not."""
+    for resolution in (textile.resolution, Resolution()):
+        try:
+            Textile(textile.cell, textile.yarns, textile.name, resolution).check_size()
+        except TextileError as e:
+            raise GeometryError(f"the corrected model would not be read back: {e}") from None

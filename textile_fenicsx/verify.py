@@ -26,7 +26,7 @@ import numpy as np
 
 from textile_fenicsx.metrics import measure
 from textile_fenicsx.sections import Polygon
-from textile_fenicsx.stations import stations
+from textile_fenicsx.stations import budgets, stations
 from textile_fenicsx.textile import Textile
 
 __all__ = ["Tolerances", "assess", "self_intersecting"]
@@ -271,6 +271,7 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
                                                           f"{change[k]:+.2%}, length {length[k] - 1:+.2%})"})
     _surface_checks(initial, corrected, tol, out, verdict)
     spacing = run.settings.correction.station_spacing(run.settings.mesh.seed)
+    most = budgets(initial.yarns, spacing, run.settings.correction.section_points)
     area_change = []
     for i, (y0, y1) in enumerate(zip(initial.yarns, corrected.yarns)):
         polys = _sections(corrected, i)
@@ -282,7 +283,7 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
             verdict["failures"].append({"check": "section", "yarn": i, "station": int(crossed[0]),
                                         "message": f"{names[i]} (yarn {i}): {len(crossed)} section polygons cross "
                                                    f"themselves (first at station {int(crossed[0])})"})
-        a0 = _areas(y0.section_points(stations(y0, spacing), polys.shape[1]))
+        a0 = _areas(y0.section_points(stations(y0, spacing, most[i]), polys.shape[1]))
         ratio = _areas(polys) / a0 - 1 if len(a0) == len(polys) else np.zeros(1)
         area_change.append(float(ratio[np.argmax(np.abs(ratio))]))
         if abs(area_change[-1]) > tol.section_area:
