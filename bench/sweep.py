@@ -15,6 +15,7 @@ slow); `make sweep` prints the table:
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -37,9 +38,10 @@ def cases() -> list[str]:
     return sorted(p.stem for p in FABRICS.glob("*.tg3")) + sorted(BUILT)
 
 
-def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1) -> dict:
+def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1, keep: Path | None = None) -> dict:
     """Solve one case with the default command in a fresh process (under mpirun -n ranks if > 1);
-    its record."""
+    its record. keep: a folder to which the run's model files and metrics.json are copied (as
+    keep/name/)."""
     with tempfile.TemporaryDirectory(prefix=f"sweep-{name[:30]}-") as tmp:
         tmp = Path(tmp)
         if name in BUILT:
@@ -69,6 +71,13 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1)
                           failures=[f["message"] for f in m["verdict"]["failures"]])
         if proc.returncode != 0:
             record["error"] = proc.stderr.strip().splitlines()[-1:] if proc.stderr.strip() else []
+        if keep is not None and out.is_dir():
+            (keep / name).mkdir(parents=True, exist_ok=True)
+            for f in ("corrected.tg3", "rejected.tg3", "metrics.json"):
+                if (out / f).is_file():
+                    shutil.copy(out / f, keep / name / f)
+            if name in BUILT:
+                shutil.copy(model, keep / name / "model.tg3")
         return record
 
 
@@ -96,11 +105,12 @@ def main() -> None:
     parser.add_argument("--only", nargs="+", metavar="NAME")
     parser.add_argument("--ranks", type=int, default=1, help="MPI ranks per solve (mpirun -n)")
     parser.add_argument("--out", type=Path, default=REPO / "output" / "sweep.json")
+    parser.add_argument("--keep", type=Path, help="copy each run's model files and metrics.json to KEEP/NAME/")
     args = parser.parse_args()
     records = []
     for name in args.only or cases():
         print(f"sweep: {name}", file=sys.stderr, flush=True)
-        records.append(run_case(name, args.seed, ranks=args.ranks))
+        records.append(run_case(name, args.seed, ranks=args.ranks, keep=args.keep))
         r = records[-1]
         print(f"sweep: {name}: exit {r['exit']}" + (f", {r['failures']}" if r.get("failures") else "")
               + (f", {r['error']}" if r.get("error") and not r.get("failures") else ""), file=sys.stderr, flush=True)

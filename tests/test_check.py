@@ -102,3 +102,83 @@ def test_reference_weaves_pass_their_check_by_default(name, tmp_path):
     assert ip["after"]["max_depth"] <= 0.01 * h_min
     assert max(map(abs, m["yarn_volume_per_length_change"])) <= 0.01
     assert max(map(abs, m["section_area_change"])) <= 0.01
+
+
+def _arc_yarn(radius: float, angle: float, width: float, half_height: float):
+    """A yarn along a circular arc of `radius` [mm] turning by `angle` [rad] in the xz plane, its
+    centre of curvature below (a crest), with a rectangular section width x 2 half_height whose 64
+    vertices include the corners (so that the surfaces sample it exactly)."""
+    from textile_fenicsx.yarn import ConstantSection, Yarn
+
+    phi = np.linspace(-angle / 2, angle / 2, 41)
+    nodes = np.column_stack((radius * np.sin(phi), np.zeros_like(phi), radius * np.cos(phi)))
+    a, b = width / 2, half_height
+    sides = [np.linspace(p, q, 16, endpoint=False) for p, q in
+             (((a, -b), (a, b)), ((a, b), (-a, b)), ((-a, b), (-a, -b)), ((-a, -b), (a, -b)))]
+    rectangle = Polygon(tuple(map(tuple, np.roll(np.vstack(sides), -8, axis=0))))
+    return Yarn(nodes, ConstantSection(rectangle), "cubic", periodic=False, name="binder")
+
+
+@pytest.mark.serial
+def test_a_yarn_s_surface_holds_its_sections_area_per_length_unless_it_folds():
+    # issue 27: the volume per length of a yarn measured from its own surface (the divergence
+    # theorem) is its section's area where the path turns more gently than the section is thick
+    # (Pappus: the centroid on the path); round a bend of radius R below the half-height h the
+    # sections sweep backwards on the inside, w (h - R)^2 / 2 per radian, counted by tube().folded
+    from textile_fenicsx.textile import Resolution
+    from textile_fenicsx.verify import tube
+
+    fine = Resolution(spacing=0.002, section_points=64, per_segment=4)
+    w, h, angle = 1.0, 0.1, np.pi / 2
+    gentle = tube(_arc_yarn(0.5, angle, w, h), fine)
+    assert gentle.folded == 0 and gentle.at is None
+    assert gentle.length == pytest.approx(0.5 * angle, rel=1e-4)
+    assert gentle.per_length == pytest.approx(w * 2 * h, rel=1e-3)
+    tight = tube(_arc_yarn(0.05, angle, w, h), fine)
+    assert tight.folded == pytest.approx(w * angle * (h - 0.05) ** 2 / 2, rel=0.05)
+    assert np.hypot(tight.at[0], tight.at[2]) == pytest.approx(0.05, rel=1e-3)  # a point of the path
+
+
+@pytest.mark.serial
+def test_the_check_refuses_a_yarn_that_folds_over_and_names_it():
+    # issue 27: TexGen's orthogonal binders came out of the correction folded at their corners,
+    # every section's area kept (the check passed them): the check now measures the fold, and its
+    # message names the yarn, the share of its volume and the place
+    from textile_fenicsx.textile import Cell, Textile
+    from textile_fenicsx.verify import Tolerances, _surface_checks
+
+    def textile(radius):
+        return Textile(Cell(4.0, 4.0, periodic=False), [_arc_yarn(radius, np.pi / 2, 1.0, 0.1)], name="arc")
+
+    out, verdict = {}, {"failures": []}
+    _surface_checks(textile(0.5), textile(0.5), Tolerances(), out, verdict)
+    assert verdict["failures"] == [] and out["yarn_folded_fraction"] == [0.0]
+    _surface_checks(textile(0.5), textile(0.05), Tolerances(), out, verdict)
+    # the volume its surface encloses per length is its sections' area still (Pappus counts the
+    # folded volume negatively once and the sections' areas positively once more): only the fold says
+    assert [f["check"] for f in verdict["failures"]] == ["fold"]
+    fold = verdict["failures"][0]
+    assert fold["yarn"] == 0 and fold["value"] == pytest.approx(0.125, rel=0.05)  # (h - R)^2 / (4 h R)
+    assert "binder (yarn 0) folds over itself: 12" in fold["message"]
+    assert "swept backwards" in fold["message"] and fold["at"] is not None
+
+
+@pytest.mark.mpi
+def test_a_tight_plain_weave_keeps_its_volume_per_length(comm):
+    # issue 27: TexGen's plain weave of boxy (polygon) sections at width/spacing 0.9 gained 3.0 %
+    # volume per length in its corrected model (the sections bend with the plates across their
+    # width, their centroids 0.056 mm off the path, above it over a crest: a swept tube holds
+    # A (1 - k . c) per length). With the path through the centroids: within 0.1 %, both measured
+    # by the rays in the cell and from each yarn's surface, and the check passes
+    from textile_fenicsx.meshes.projected import MeshOptions
+    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.tg3 import read_tg3
+
+    result = run(read_tg3(REPO / "reference" / "fabrics" / "plain_w0.9_h0.2_polygon.tg3"),
+                 Settings(MeshOptions(0.5)), comm)
+    m = result.metrics
+    assert m["verdict"]["passed"], [f["message"] for f in m["verdict"]["failures"]]
+    assert max(map(abs, m["yarn_volume_per_length_change"])) < 1e-3
+    assert max(map(abs, m["yarn_surface_volume_per_length_change"])) < 1e-3
+    assert max(m["yarn_volume_change"]) > 0.14  # the yarns are 15 % longer: more crimp, not more area
+    assert m["after"]["interpenetration"]["volume"] == 0.0

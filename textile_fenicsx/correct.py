@@ -9,20 +9,30 @@ steepens the section thins by new_up_z / old_up_z, which keeps the vertical thic
 kept. Where the path flattens (a binder's steep stretch smoothed)
 the section keeps its own thickness: moving the points vertically and projecting them on the new
 plane, the literal reading of DESIGN.md, collapses sections there (they lay along the old path).
-The corrected yarn is a periodic cubic through the moved stations with one polygon section per
-station, so every query, metric and export of the model works on it.
+Bent with the plate across its width a section's centroid leaves the path: the path is then moved
+onto the centroids, and the sections cut anew from the same surface normal to it (_centred), so
+that a yarn holds its sections' area per length of its path. The corrected yarn is a periodic
+cubic through the moved stations (stations.py: closer where the path turns, at most as many as a
+model may have master nodes) with one polygon section per station, so every query, metric and
+export of the model works on it.
 """
 
 
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from textile_fenicsx.errors import GeometryError, TextileError, check_positive
 from textile_fenicsx.fields import evaluate
+from textile_fenicsx.limits import MAX_NODES, MAX_NODES_PER_YARN, MAX_SURFACE_POINTS
 from textile_fenicsx.sections import Polygon
-from textile_fenicsx.textile import Cell, Textile
+from textile_fenicsx.stations import budgets, stations
+from textile_fenicsx.textile import Cell, Resolution, Textile
+from textile_fenicsx.verify import self_intersecting
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -69,10 +79,32 @@ class _Whole:
         return evaluate(self.w, _wrap(xy.reshape(-1, 2), self.cell), extrapolate=True).reshape(xy.shape[:2])
 
 
+# A leg's change of length goes where it is vertical: its height is weighted by the vertical part
+# of its tangent to this power (1 in the straight middle, 0.43 where it leans 25 degrees, 0.13 at
+# the slope of 3 where it meets its crowns). Shortened evenly in height, the rounded ends were
+# squeezed too: TexGen's orthogonal binders at seed 0.5 then turned at 15/mm (0.08 mm half-height)
+VERTICAL = 8
+
+
+def _climb(yarn: Yarn, s: np.ndarray, per_segment: int = 64) -> np.ndarray:
+    """The height the centreline climbs or falls from its start to parameters s [mm]: |dz|
+    summed, weighted by |tangent_z| ** VERTICAL; s may run past the ends of a periodic yarn (a
+    whole period adds the period's sum)."""
+    dense = np.linspace(0, yarn.n_segments, yarn.n_segments * per_segment + 1)
+    pos, tan = yarn.centreline(dense)
+    steep = (0.5 * (np.abs(tan[1:, 2]) + np.abs(tan[:-1, 2]))) ** VERTICAL
+    table = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(pos[:, 2])) * steep)))
+    if not yarn.periodic:
+        return np.interp(s, dense, table)
+    n = yarn.n_segments
+    wraps = np.floor(s / n)
+    return np.interp(s - wraps * n, dense, table) + wraps * table[-1]
+
+
 class _Crowns:
     """The displacement of a yarn cut into crowns (legs.py): each station on a crown takes that
     crown's plate; a leg's stations take the displacements of its two crown ends, interpolated
-    along the leg in the path parameter (the leg's sections move as a whole)."""
+    along the leg in the height it descends or climbs (the leg's sections move as a whole)."""
 
     def __init__(self, yarn: Yarn, pieces: list, cell: Cell):
         self.yarn, self.pieces, self.cell = yarn, pieces, cell  # pieces: [(crown, w, plate yarn)]
@@ -103,8 +135,23 @@ class _Crowns:
             if self.yarn.periodic:  # the legs between the last end and the first start wrap
                 ps, ws = np.r_[ps[-1] - n, ps, ps[0] + n], np.r_[ws[-1], ws, ws[0]]
             t = s[legs] - np.floor((s[legs] - ps[0]) / n) * n if self.yarn.periodic else s[legs]
-            out[legs] = np.interp(t, ps, ws)
+            out[legs] = self._along_legs(t, ps, ws)
         return out
+
+    def _along_legs(self, t: np.ndarray, ps: np.ndarray, ws: np.ndarray) -> np.ndarray:
+        """w at leg parameters t between crown ends at parameters ps (sorted) with w = ws: each
+        leg stretched or shortened in its vertical middle (_climb), w interpolated in the height
+        the path has climbed (or fallen) from the leg's start, not in the path parameter. A leg's
+        ends are rounded (its slope falls to the crowns' 3): in the parameter they took as much
+        of its shortening as its vertical middle, more than they fall there, and the path turned
+        back (TexGen's orthogonal weave at seed 0.5: a leg 1.4 mm high shortened by 0.35 mm rose
+        0.01 mm after its lower corner, whose sections then folded over each other)."""
+        k = np.clip(np.searchsorted(ps, t, side="right") - 1, 0, len(ps) - 2)
+        climb = _climb(self.yarn, np.concatenate((ps, t)))
+        c0, c1, c = climb[k], climb[k + 1], climb[len(ps):]
+        frac = np.where(c1 > c0, (c - c0) / np.where(c1 > c0, c1 - c0, 1.0),
+                        (t - ps[k]) / np.maximum(ps[k + 1] - ps[k], 1e-300))
+        return ws[k] + (ws[k + 1] - ws[k]) * np.clip(frac, 0.0, 1.0)
 
     def points(self, s: np.ndarray, xy: np.ndarray, w_centre: np.ndarray) -> np.ndarray:
         owner, out = self._owner(s), np.repeat(w_centre[:, None], xy.shape[1], axis=1)
@@ -119,14 +166,14 @@ class _Crowns:
 
 
 def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32,
-                   section_tol: float | None = None) -> Yarn:
+                   section_tol: float | None = None, most: int | None = None) -> Yarn:
     """Yarn i moved by its displacement: w, a Function on its mid-surface (or, for a yarn cut
-    into crowns, a _Crowns of their Functions). Its sections are kept where the blend of their
-    neighbours misses them by more than section_tol [mm] (default SECTION_TOL of the height;
-    0 keeps every station's)."""
+    into crowns, a _Crowns of their Functions), at stations (stations.py; at most `most`). Its
+    sections are kept where the blend of their neighbours misses them by more than section_tol
+    [mm] (default SECTION_TOL of the height; 0 keeps every station's)."""
     yarn = textile.yarns[i]
     w = w if isinstance(w, _Crowns) else _Whole(w, textile.cell)
-    s = yarn.stations(spacing)
+    s = stations(yarn, spacing, most)
     pos, _, up, side = yarn.frames(s)
     sec = yarn.section_points(s, n_points)
     # section coordinates in the unrotated frame (side0 horizontal): (u0 across, v0 up)
@@ -165,7 +212,7 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     # neighbours, thickening spends the margin the exact contact keeps at the nodes)
     ratio = (_areas(u0, v0) / _areas(u0, v_new))[:, None]
     u_new, v_new = u0 * np.minimum(1.0, ratio), v_new * np.maximum(1.0, ratio)
-    polys = np.stack((u_new, v_new), axis=-1)
+    new_pos, polys = _centred(probe, new_pos, np.stack((u_new, v_new), axis=-1), yarn.periodic)
     tol = SECTION_TOL * _heights(polys).min() if section_tol is None else section_tol
     return Yarn(new_pos, sparse_sections(new_pos, polys, yarn.periodic, tol),
                 "cubic", yarn.periodic, yarn.repeats, ups=ups, name=yarn.name, fibres=yarn.fibres)
@@ -221,6 +268,108 @@ def _areas(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(u * np.roll(v, -1, axis=1) - np.roll(u, -1, axis=1) * v, axis=1)
 
 
+def centroids(polys: np.ndarray) -> np.ndarray:
+    """Centroids (S, 2) of the polygons (S, n, 2) (of their areas, not of their points)."""
+    u, v = polys[..., 0], polys[..., 1]
+    un, vn = np.roll(u, -1, axis=1), np.roll(v, -1, axis=1)
+    cross = u * vn - un * v
+    six_area = 3.0 * np.sum(cross, axis=1)
+    return np.column_stack((np.sum((u + un) * cross, axis=1), np.sum((v + vn) * cross, axis=1))) / six_area[:, None]
+
+
+def _centred(probe: Yarn, pos: np.ndarray, polys: np.ndarray, periodic: bool,
+             passes: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The stations moved onto their sections' centroids, the sections cut from the same surface
+    in the planes normal to the new path, and thickened back to their area.
+
+    A section moved point by point with the plate bends with it: across a crossing yarn's curve
+    its flanks rise or fall and its centroid leaves the path (0.056 mm of a 0.36 mm section on
+    the polygon weave). A tube swept along a path of curvature k holds A (1 - k . c) per unit of
+    path length, c the centroid's offset (Pappus): flanks up over a crest, down under a trough
+    grew the plain polygon weave's volume per length by 3 %. With its path through the centroids
+    a yarn holds its sections' area per length, and its length is its fibres'. Only the offset
+    along the section's up vector is taken: the path's curvature lies in that plane, and the
+    across offset is noise of a few um where a crown meets a leg, which put wiggles into the path.
+
+    The new path turns by dc/ds against the old: a section merely turned with it would move its
+    flanks along the path (0.02 mm on the jammed plain weave, where the flanks drape more steeply
+    than the path). Instead the surface is kept: each new section is where the plane normal to
+    the new path cuts the old tube (_cut). That oblique cut holds A cos(dc/ds): the section is
+    thickened back to A about its centroid (by dc/ds squared over 2, at most 0.7 % on the
+    polygon weave)."""
+    if np.max(np.abs(centroids(polys)[:, 1])) < 1e-12:  # on the path already (a leg, a straight yarn)
+        return pos, polys
+    target = _areas(polys[..., 0], polys[..., 1])
+    _, _, up, side = probe.frames(np.arange(len(pos), dtype=float))
+    surface = (probe, polys)
+    moved, frame, shift = pos, (up, side), np.zeros(len(pos))
+    for _ in range(passes):
+        c = centroids(polys)
+        moved = moved + c[:, 1:] * frame[0]
+        shift += c[:, 1]
+        if periodic:  # the last station repeats the first
+            moved[-1] = moved[0] + (pos[-1] - pos[0])
+        _, tan, up, side = replace(probe, nodes=moved).frames(np.arange(len(pos), dtype=float))
+        frame = (up, side)
+        cut = _cut(*surface, moved, tan) - moved[:, None, :]
+        polys = np.stack((np.einsum("mkj,mj->mk", cut, side), np.einsum("mkj,mj->mk", cut, up)), axis=-1)
+    # where the old tube folds, a plane may cut it more than once and the cut cross itself: the
+    # section is then only turned with the path (seen at a binder's crown end in an input whose
+    # legs overlap their neighbours)
+    crossed = self_intersecting(polys)
+    polys[crossed] = surface[1][crossed] - np.stack((np.zeros(crossed.sum()), shift[crossed]), axis=-1)[:, None, :]
+    c = centroids(polys)
+    grow = (target / _areas(polys[..., 0], polys[..., 1]))[:, None]
+    polys = np.stack((polys[..., 0], c[:, 1:] + (polys[..., 1] - c[:, 1:]) * grow), axis=-1)
+    if periodic:
+        polys[-1] = polys[0]
+    return moved, polys
+
+
+def _cut(probe: Yarn, polys: np.ndarray, at: np.ndarray, normal: np.ndarray, iterations: int = 4,
+         fine: int = 32) -> np.ndarray:
+    """Where the planes through at[m] normal to normal[m] (M, 3) cut the tube of the path `probe`
+    (its frames) carrying the polygons `polys` (M, K, 2) at its nodes, blended linearly between
+    them (the surface the corrected yarn would have): per point of each section, the crossing of
+    its line along the tube nearest node m (secant steps from the node, within one node of it;
+    the path and its frames taken at `fine` samples per node interval, linear between)."""
+    M, K = polys.shape[:2]
+    n = probe.n_segments
+    grid = np.arange(M)[:, None] + np.linspace(-1.0, 1.0, 2 * fine + 1)[None, :]  # (M, G)
+    wrap = np.floor(grid / n) if probe.periodic else np.zeros_like(grid)
+    grid = grid - wrap * n if probe.periodic else np.clip(grid, 0, n)
+    pos, _, up, side = (a.reshape(M, -1, 3) for a in probe.frames(grid.ravel()))
+    pos = pos + wrap[..., None] * (probe.nodes[-1] - probe.nodes[0])
+    pos, up, side = (a.reshape(-1, 3) for a in (pos, up, side))
+    rows, k = np.arange(M)[:, None], np.arange(K)[None, :]
+
+    def point(x: np.ndarray) -> np.ndarray:  # (M, K, 3) on the tube at parameters node m + x[m, k]
+        g = (x + 1.0) * fine
+        j = np.minimum(np.floor(g).astype(int), 2 * fine - 1)
+        f = (g - j)[..., None]
+        flat = rows * (2 * fine + 1) + j
+        on = lambda a: a[flat] + (a[flat + 1] - a[flat]) * f
+        s = np.clip(rows + x, 0, M - 1) if not probe.periodic else rows + x
+        s = np.mod(s, n) if probe.periodic else s
+        i = np.minimum(np.floor(s).astype(int), n - 1)
+        sec = polys[i, k] + (polys[i + 1, k] - polys[i, k]) * (s - i)[..., None]
+        return on(pos) + sec[..., :1] * on(side) + sec[..., 1:] * on(up)
+
+    def offset(x: np.ndarray) -> np.ndarray:
+        return np.einsum("mkj,mj->mk", point(x) - at[:, None, :], normal)
+
+    x0, x1 = np.zeros((M, K)), np.full((M, K), 0.1)
+    f0, f1 = offset(x0), offset(x1)
+    for _ in range(iterations):
+        if np.max(np.abs(f1)) < 1e-13:
+            break
+        slope = (f1 - f0) / np.where(x1 != x0, x1 - x0, 1.0)
+        x2 = np.clip(np.where(slope != 0, x1 - f1 / np.where(slope != 0, slope, 1.0), x1), -1.0, 1.0)
+        x0, f0, x1 = x1, f1, x2
+        f1 = offset(x1)
+    return point(x1)
+
+
 def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int = 32, split=None) -> Textile:
     """The textile with every yarn moved by its displacement (w[k] for plate yarn k: yarn k itself,
     or with `split` (legs.Split) the crown k of the plate model); collective."""
@@ -235,7 +384,15 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
                 if displacements[crown.yarn] is None:
                     displacements[crown.yarn] = _Crowns(textile.yarns[crown.yarn], [], textile.cell)
                 displacements[crown.yarn].pieces.append((crown, w[k], split.plate.yarns[k]))
-    yarns = [corrected_yarn(textile, i, wi, spacing, n_points) for i, wi in enumerate(displacements)]
+    most = budgets(textile.yarns, spacing, n_points)
+    for y, bound in zip(textile.yarns, most):
+        if bound is not None:
+            log.warning("%s: corrected at %d stations, %.3g mm apart on average instead of at most %g mm: the "
+                        "corrected yarn has a master node at each, and a model is read back with at most %d per "
+                        "yarn, %d in all and %.3g surface points (limits.py)", y.name, bound,
+                        y.length() / (bound - 1), spacing, MAX_NODES_PER_YARN, MAX_NODES, MAX_SURFACE_POINTS)
+    yarns = [corrected_yarn(textile, i, wi, spacing, n_points, most=bound)
+             for i, (wi, bound) in enumerate(zip(displacements, most))]
     c = textile.cell
     z = np.concatenate([y.nodes[:, 2] for y in yarns])
     heights = [max(s.height for s in y.section.sections()) for y in yarns]
@@ -244,4 +401,17 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
     # its surfaces need no finer stations than its own (one polygon per station of the correction)
     resolution = replace(textile.resolution, spacing=max(textile.resolution.spacing, spacing),
                          section_points=n_points)
-    return Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution)
+    corrected = Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution)
+    readable(corrected)
+    return corrected
+
+
+def readable(textile: Textile) -> None:
+    """Refuse (GeometryError naming the yarn, the quantity and the bound) a model the pipeline made
+    that its readers would refuse: as a .tg3 (read with the default resolution) or as our model
+    file (with its own). budgets() keeps corrected models within; this says where one is not."""
+    for resolution in (textile.resolution, Resolution()):
+        try:
+            Textile(textile.cell, textile.yarns, textile.name, resolution).check_size()
+        except TextileError as e:
+            raise GeometryError(f"the corrected model would not be read back: {e}") from None

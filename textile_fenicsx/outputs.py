@@ -96,6 +96,8 @@ def metrics_document(run) -> dict:
         "yarn_volume_change": m.get("yarn_volume_change"),
         "yarn_volume_per_length_change": m.get("yarn_volume_per_length_change"),
         "section_area_change": m.get("section_area_change"),
+        "yarn_surface_volume_per_length_change": m.get("yarn_surface_volume_per_length_change"),
+        "yarn_folded_fraction": m.get("yarn_folded_fraction"),
         "vf": pick("vf"),
         "dofs": summary["dofs"], "cells": summary["cells"], "iterations": summary["iterations"],
         "converged": summary["converged"], "reason": summary["reason"],

@@ -142,7 +142,9 @@ class Yarn:
             s = np.arange(len(self.nodes), dtype=float)
             if self.periodic:
                 drift = np.outer(s / s[-1], self.period)  # periodic part plus a linear drift
-                self._spline = (CubicSpline(s, self.nodes - drift, bc_type="periodic"), self.period / s[-1])
+                part = self.nodes - drift
+                part[-1] = part[0]  # the last node is the first plus the period: equal, not to round-off
+                self._spline = (CubicSpline(s, part, bc_type="periodic"), self.period / s[-1])
             else:
                 self._spline = (CubicSpline(s, self.nodes, bc_type="natural"), np.zeros(3))
         return self._spline
