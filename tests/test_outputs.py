@@ -58,7 +58,6 @@ def test_correction_of_a_manufactured_lift_and_twist(satin_run):
     w = dolfinx.fem.Function(ms.V)
     w.interpolate(lambda x: a + b * (x[1] - y_c))
     from textile_fenicsx.correct import corrected_yarn
-
     from textile_fenicsx.stations import stations
 
     new = corrected_yarn(t, i, w, spacing=0.25, n_points=24, section_tol=0.0)  # every station's section

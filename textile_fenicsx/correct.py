@@ -338,9 +338,9 @@ def _cut(probe: Yarn, polys: np.ndarray, at: np.ndarray, normal: np.ndarray, ite
     grid = np.arange(M)[:, None] + np.linspace(-1.0, 1.0, 2 * fine + 1)[None, :]  # (M, G)
     wrap = np.floor(grid / n) if probe.periodic else np.zeros_like(grid)
     grid = grid - wrap * n if probe.periodic else np.clip(grid, 0, n)
-    pos, _, up, side = (a.reshape(M, -1, 3) for a in probe.frames(grid.ravel()))
-    pos = pos + wrap[..., None] * (probe.nodes[-1] - probe.nodes[0])
-    pos, up, side = (a.reshape(-1, 3) for a in (pos, up, side))
+    frames = [a.reshape(M, -1, 3) for a in probe.frames(grid.ravel())]
+    frames[0] = frames[0] + wrap[..., None] * (probe.nodes[-1] - probe.nodes[0])
+    pos, up, side = (frames[k].reshape(-1, 3) for k in (0, 2, 3))
     rows, k = np.arange(M)[:, None], np.arange(K)[None, :]
 
     def point(x: np.ndarray) -> np.ndarray:  # (M, K, 3) on the tube at parameters node m + x[m, k]
@@ -348,7 +348,10 @@ def _cut(probe: Yarn, polys: np.ndarray, at: np.ndarray, normal: np.ndarray, ite
         j = np.minimum(np.floor(g).astype(int), 2 * fine - 1)
         f = (g - j)[..., None]
         flat = rows * (2 * fine + 1) + j
-        on = lambda a: a[flat] + (a[flat + 1] - a[flat]) * f
+
+        def on(a: np.ndarray) -> np.ndarray:
+            return a[flat] + (a[flat + 1] - a[flat]) * f
+
         s = np.clip(rows + x, 0, M - 1) if not probe.periodic else rows + x
         s = np.mod(s, n) if probe.periodic else s
         i = np.minimum(np.floor(s).astype(int), n - 1)

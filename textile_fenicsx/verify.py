@@ -214,6 +214,7 @@ def _surface_checks(initial: Textile, corrected: Textile, tol: Tolerances, out: 
     k = int(np.argmax(folded))
     if folded[k] > tol.fold:
         at = tubes[k][1].at
+        assert at is not None
         verdict["failures"].append({"check": "fold", "value": folded[k], "limit": tol.fold, "yarn": k, "at": at,
                                     "message": f"{names[k]} (yarn {k}) folds over itself: {folded[k]:.2%} of its "
                                                f"volume is swept backwards (limit {tol.fold:.1%}), most near "
