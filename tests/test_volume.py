@@ -162,3 +162,54 @@ def test_options_are_checked():
         VolumeOptions("hex")
     with pytest.raises(TextileError, match="volume mesh size must be > 0"):
         VolumeOptions("voxel", -1)
+
+
+@pytest.mark.serial
+def test_volume_mesh_then_homogenise_commands(tmp_path):
+    # the commands as a user runs them, on the cross-ply: the mesh folder, then stiffness.json, whose
+    # C lies between the Voigt and Reuss bounds, and its in-plane constants are those of a balanced
+    # cross-ply (Ex = Ey, Gxz = Gyz: the model's 90-degree rotation), to the solver's tolerance
+    model = tmp_path / "cross_ply.json"
+    from textile_fenicsx.config import save_model
+
+    save_model(cross_ply(), model)
+
+    def run(*args):
+        return subprocess.run(["textile-fenicsx", *args], capture_output=True, text=True, timeout=600)
+
+    r = run("volume-mesh", str(model), "--kind", "voxel", "--size", "0.2", "--yarn-vf", "0.6", "--out",
+            str(tmp_path / "vol"))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0].startswith("voxel mesh: 1200 elements, Vf ")  # 20 x 20 x 3
+    r = run("homogenise", str(tmp_path / "vol" / "volume.xdmf"), "--fibre", "e-glass", "--matrix", "epoxy",
+            "--degree", "1", "--out", str(tmp_path / "h"))
+    assert r.returncode == 0, r.stderr
+    s = json.loads((tmp_path / "h" / "stiffness.json").read_text())
+    assert s["voigt_order"] == ["11", "22", "33", "23", "13", "12"]
+    c = s["engineering_constants"]
+    assert c["Ex"] == pytest.approx(c["Ey"], rel=1e-6) and c["Gxz"] == pytest.approx(c["Gyz"], rel=1e-6)
+    assert s["checks"]["min_eig_C"] > 0 and s["checks"]["min_eig_voigt_minus_C"] > -1e-12
+    assert s["checks"]["min_eig_C_minus_reuss"] > -1e-12
+    assert r.stdout.startswith("Ex ") and "Vf 0." in r.stdout
+
+
+@pytest.mark.serial
+def test_homogenise_command_errors_name_the_culprit(tmp_path):
+    import dolfinx
+
+    def run(*args):
+        return subprocess.run(["textile-fenicsx", "homogenise", *args], capture_output=True, text=True, timeout=300)
+
+    bare = tmp_path / "bare.xdmf"
+    with dolfinx.io.XDMFFile(MPI.COMM_SELF, bare, "w") as f:
+        f.write_mesh(dolfinx.mesh.create_unit_cube(MPI.COMM_SELF, 2, 2, 2))
+    out = tmp_path / "h"
+    r = run(str(bare), "--out", str(out))
+    assert r.returncode == 2 and "bare.xdmf: no phase, direction, yarn_vf in this XDMF file" in r.stderr
+    r = run(str(bare), "--fibre", "kevlar", "--out", str(out))
+    assert r.returncode == 2 and "unknown material 'kevlar'" in r.stderr
+    bad = tmp_path / "fibre.toml"
+    bad.write_text('symmetry = "isotropic"\nE = 70000\n')
+    r = run(str(bare), "--fibre", str(bad), "--out", str(out))
+    assert r.returncode == 2 and "fibre.toml" in r.stderr and "nu" in r.stderr
+    assert not out.exists()

@@ -131,9 +131,10 @@ class CellProblem:
                 database.delValue(prefix + key)
         self.pc_seconds = time.perf_counter() - t0
 
-    def solve(self, loads) -> dict:
+    def solve(self, loads, keep: bool = False) -> dict:
         """Solve for each load value (arrays for the load constant); returns {"energy": (n, n) array
-        of v_i . f_j + v_j . f_i + v_i . K v_j, "iterations": [...], "seconds": [...]}."""
+        of v_i . f_j + v_j . f_i + v_i . K v_j, "iterations": [...], "seconds": [...]} and, with
+        keep, "fluctuations": each load case's fluctuation as a Function (slaves filled in)."""
         xs, bs, its, secs = [], [], [], []
         for k, value in enumerate(loads):
             t0 = time.perf_counter()
@@ -157,7 +158,20 @@ class CellProblem:
         n = len(xs)
         energy = np.array([[xs[i].dot(Kx[j]) - xs[i].dot(bs[j]) - xs[j].dot(bs[i]) for j in range(n)]
                            for i in range(n)])
-        return {"energy": energy, "iterations": its, "seconds": secs}
+        out = {"energy": energy, "iterations": its, "seconds": secs}
+        if keep:
+            out["fluctuations"] = [self._function(x, k) for k, x in enumerate(xs)]
+        return out
+
+    def _function(self, x, k: int) -> dolfinx.fem.Function:
+        """The fluctuation of load case k as a Function of the constrained space (slave values set
+        from their masters)."""
+        v = dolfinx.fem.Function(self.mpc.function_space, name=f"{self.name}_fluctuation_{k + 1}")
+        n = len(self.constrained)
+        v.x.array[:n] = x.getArray()
+        v.x.scatter_forward()
+        self.mpc.backsubstitution(v)
+        return v
 
     def _check(self, k: int, b) -> None:
         reason = self.ksp.getConvergedReason()
