@@ -37,7 +37,6 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 from mpi4py import MPI
 
 import textile_fenicsx as tfx

@@ -75,10 +75,10 @@ def strain_energy_cut(fields: Any, fibre: str, matrix: str, case: int, strain: f
     mean strain `strain` [-], per element (at its centre), on the cut y = const [mm] of the meshed
     cell `fields` (volume_files.VolumeFields); collective, rank 0 draws."""
     import basix.ufl
-    import ufl
 
     import dolfinx
-    from textile_fenicsx.forms.elasticity import elastic_energy_density, strain as eps, voigt_strain
+    from textile_fenicsx.forms.elasticity import elastic_energy_density, voigt_strain
+    from textile_fenicsx.forms.elasticity import strain as eps
     from textile_fenicsx.homogenise.cellproblem import CG_GAMG
     from textile_fenicsx.homogenise.elasticity import ElasticCellProblem
     from textile_fenicsx.homogenise.fields import yarn_fields
