@@ -70,8 +70,8 @@ def one(args) -> None:
     """The child: one case on the ranks mpirun gave it; prints RESULT <json> on rank 0."""
     from mpi4py import MPI
 
-    from textile_fenicsx.homogenise import HomogeniseOptions, homogenise
-    from textile_fenicsx.homogenise.cellproblem import CG_GAMG
+    from textile_fenicsx.homogenisation import HomogeniseOptions, homogenise
+    from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
 
     comm = MPI.COMM_WORLD
     solver = dict(CG_GAMG, ksp_rtol=args.rtol, **json.loads(args.options))

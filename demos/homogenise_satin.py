@@ -69,7 +69,7 @@ if "tet" in kinds:
     cells["corrected, tet"] = (gapped, "tet")
 
 # Mesh and homogenise each cell (E-glass in epoxy, the presets; their sources are in
-# `textile_fenicsx/homogenise/materials.py`):
+# `textile_fenicsx/homogenisation/materials.py`):
 
 results, meshes = {}, {}
 for name, (textile, kind) in cells.items():

@@ -14,7 +14,7 @@ from test_materials import PATCH, rotation, tensor_rotation
 import dolfinx
 import dolfinx.fem
 from textile_fenicsx.errors import FormatError, GeometryError, SolverError, TextileError
-from textile_fenicsx.homogenise import (
+from textile_fenicsx.homogenisation import (
     HomogeniseOptions,
     Isotropic,
     Orthotropic,
@@ -23,10 +23,10 @@ from textile_fenicsx.homogenise import (
     phase_fields,
     yarn_material,
 )
-from textile_fenicsx.homogenise.cellproblem import CG_GAMG
-from textile_fenicsx.homogenise.homogenise import _nodes
-from textile_fenicsx.homogenise.materials import PRESETS, stiffness
-from textile_fenicsx.homogenise.periodic import bounding_box, check_one_master, periodic_constraint
+from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+from textile_fenicsx.homogenisation.effective import _nodes
+from textile_fenicsx.homogenisation.materials import PRESETS, stiffness
+from textile_fenicsx.homogenisation.periodic import bounding_box, check_one_master, periodic_constraint
 
 CELLS = {"hex": dolfinx.mesh.CellType.hexahedron, "tet": dolfinx.mesh.CellType.tetrahedron}
 YARN = yarn_material(PRESETS["t300"], PRESETS["epoxy"], 0.6)

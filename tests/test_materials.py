@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from textile_fenicsx.errors import FormatError, GeometryError, TextileError
-from textile_fenicsx.homogenise.constants import (
+from textile_fenicsx.homogenisation.constants import (
     bond_matrix,
     bounds,
     engineering_constants,
@@ -14,7 +14,7 @@ from textile_fenicsx.homogenise.constants import (
     orthotropic_stiffness,
     rotate_stiffness,
 )
-from textile_fenicsx.homogenise.materials import (
+from textile_fenicsx.homogenisation.materials import (
     PRESETS,
     Isotropic,
     Orthotropic,
@@ -25,7 +25,7 @@ from textile_fenicsx.homogenise.materials import (
     stiffness,
     yarn_material,
 )
-from textile_fenicsx.homogenise.periodic import Box, check_node_periodicity
+from textile_fenicsx.homogenisation.periodic import Box, check_node_periodicity
 
 PATCH = dict(E1=1111.0, E2=2222.0, E3=3333.0, G12=1212.0, G13=1313.0, G23=2323.0, nu12=0.1212, nu13=0.1313,
              nu23=0.2323)

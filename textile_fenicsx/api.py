@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from textile_fenicsx.homogenise import Homogenised
+    from textile_fenicsx.homogenisation import Homogenised
     from textile_fenicsx.pipeline import Run
     from textile_fenicsx.textile import Textile
     from textile_fenicsx.volumes import CellMesh
@@ -87,8 +87,8 @@ def homogenise(volume, fibre="e-glass", matrix="epoxy", comm=None, **options) ->
     writes stiffness.json."""
     from mpi4py import MPI
 
-    from textile_fenicsx.homogenise import HomogeniseOptions
-    from textile_fenicsx.homogenise import homogenise as _homogenise
+    from textile_fenicsx.homogenisation import HomogeniseOptions
+    from textile_fenicsx.homogenisation import homogenise as _homogenise
     from textile_fenicsx.volume_files import read_volume
 
     fields = getattr(volume, "fields", None)

@@ -137,7 +137,7 @@ def homogenise(args: argparse.Namespace) -> int:
     from textile_fenicsx.api import homogenise as run_homogenise
 
     comm = MPI.COMM_WORLD
-    from textile_fenicsx.homogenise import material
+    from textile_fenicsx.homogenisation import material
 
     material(args.fibre), material(args.matrix)  # a bad name or file is refused before any work
     with claim_output(args.out, inputs=[args.mesh], names=("stiffness.json",), force=True, comm=comm):

@@ -27,13 +27,17 @@ def _cut(grid: Any, y: float) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
     return polygons, {name: np.asarray(cut.cell_data[name]) for name in cut.cell_data.keys()}
 
 
+# Through-thickness exaggeration of the cuts: a fabric is 10-20 times thinner than its cell is long.
+Z_STRETCH = 3.0
+
+
 def _axes(ax: Any, polygons: list[np.ndarray], title: str) -> None:
     pts = np.concatenate(polygons)
     ax.set_xlim(pts[:, 0].min(), pts[:, 0].max())
     ax.set_ylim(pts[:, 1].min(), pts[:, 1].max())
-    ax.set_aspect("equal")
+    ax.set_aspect(Z_STRETCH)
     ax.set_xlabel("x [mm]")
-    ax.set_ylabel("z [mm]")
+    ax.set_ylabel(f"z [mm], drawn x{Z_STRETCH:g}")
     ax.set_title(title, fontsize=9)
 
 
@@ -50,7 +54,7 @@ def phase_cuts(meshes: dict[str, Path], y: float, path: Path) -> Path:
 
     from textile_fenicsx.plotting import yarn_colours
 
-    fig, axes = plt.subplots(len(meshes), 1, figsize=(10, 1.6 + 1.5 * len(meshes)), squeeze=False)
+    fig, axes = plt.subplots(len(meshes), 1, figsize=(10, 1.0 + 2.2 * len(meshes)), squeeze=False)
     seen: dict[int, Any] = {}
     for ax, (name, vtu) in zip(axes[:, 0], meshes.items()):
         polygons, data = _cut(pyvista.read(vtu), y)
@@ -79,11 +83,11 @@ def strain_energy_cut(fields: Any, fibre: str, matrix: str, case: int, strain: f
     import dolfinx
     from textile_fenicsx.forms.elasticity import elastic_energy_density, voigt_strain
     from textile_fenicsx.forms.elasticity import strain as eps
-    from textile_fenicsx.homogenise.cellproblem import CG_GAMG
-    from textile_fenicsx.homogenise.elasticity import ElasticCellProblem
-    from textile_fenicsx.homogenise.fields import yarn_fields
-    from textile_fenicsx.homogenise.materials import material
-    from textile_fenicsx.homogenise.periodic import bounding_box
+    from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+    from textile_fenicsx.homogenisation.elasticity import ElasticCellProblem
+    from textile_fenicsx.homogenisation.fields import yarn_fields
+    from textile_fenicsx.homogenisation.materials import material
+    from textile_fenicsx.homogenisation.periodic import bounding_box
 
     msh = fields.mesh
     cell = yarn_fields(msh, fields.phase, fields.direction, fields.yarn_vf, material(fibre), material(matrix))
@@ -133,7 +137,7 @@ def _energy_figure(grid: Any, y: float, path: Path, case: int, strain: float) ->
     from matplotlib.collections import PolyCollection
 
     polygons, data = _cut(grid, y)
-    fig, ax = plt.subplots(figsize=(10, 2.8))
+    fig, ax = plt.subplots(figsize=(10, 3.6))
     coll = PolyCollection(polygons, array=data["psi"], cmap="viridis", edgecolors="none")
     ax.add_collection(coll)
     name = ("xx", "yy", "zz", "yz", "xz", "xy")[case]

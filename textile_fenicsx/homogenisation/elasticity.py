@@ -15,8 +15,8 @@ import ufl
 
 import dolfinx
 from textile_fenicsx.forms.elasticity import elastic_cell_forms
-from textile_fenicsx.homogenise.cellproblem import CellProblem
-from textile_fenicsx.homogenise.periodic import Box
+from textile_fenicsx.homogenisation.cellproblem import CellProblem
+from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ElasticCellProblem", "rigid_body_modes"]
 
@@ -36,7 +36,7 @@ class ElasticCellProblem(CellProblem):
     """The periodic elastic cell of a DG0 stiffness field D (6 x 6 per cell, MPa, global axes).
 
     `fluctuation_energies()` solves the six load cases; the effective stiffness is then
-    (int D dx + energies) / |Y| (homogenise.py adds the first term from the cells).
+    (int D dx + energies) / |Y| (effective.py adds the first term from the cells).
     """
 
     def __init__(self, D: dolfinx.fem.Function, box: Box, options: dict, degree: int = 2):

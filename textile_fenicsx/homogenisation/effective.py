@@ -19,13 +19,13 @@ from mpi4py import MPI
 
 from textile_fenicsx import memory
 from textile_fenicsx.errors import GeometryError
-from textile_fenicsx.homogenise.cellproblem import CG_GAMG
-from textile_fenicsx.homogenise.conduction import ThermalCellProblem
-from textile_fenicsx.homogenise.constants import VOIGT_ORDER, bounds, engineering_constants
-from textile_fenicsx.homogenise.elasticity import ElasticCellProblem
-from textile_fenicsx.homogenise.fields import CellFields, yarn_fields
-from textile_fenicsx.homogenise.materials import material
-from textile_fenicsx.homogenise.periodic import Box, bounding_box
+from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+from textile_fenicsx.homogenisation.conduction import ThermalCellProblem
+from textile_fenicsx.homogenisation.constants import VOIGT_ORDER, bounds, engineering_constants
+from textile_fenicsx.homogenisation.elasticity import ElasticCellProblem
+from textile_fenicsx.homogenisation.fields import CellFields, yarn_fields
+from textile_fenicsx.homogenisation.materials import material
+from textile_fenicsx.homogenisation.periodic import Box, bounding_box
 
 __all__ = ["Homogenised", "HomogeniseOptions", "estimated_bytes", "homogenise", "homogenise_fields"]
 

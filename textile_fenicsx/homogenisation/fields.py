@@ -16,8 +16,13 @@ from mpi4py import MPI
 
 import dolfinx
 from textile_fenicsx.errors import GeometryError, TextileError
-from textile_fenicsx.homogenise.constants import frames, orthotropic_stiffness, rotate_conductivity, rotate_stiffness
-from textile_fenicsx.homogenise.materials import Material, chamis, conductivity, material, stiffness
+from textile_fenicsx.homogenisation.constants import (
+    frames,
+    orthotropic_stiffness,
+    rotate_conductivity,
+    rotate_stiffness,
+)
+from textile_fenicsx.homogenisation.materials import Material, chamis, conductivity, material, stiffness
 
 __all__ = ["CellFields", "phase_fields", "yarn_fields"]
 

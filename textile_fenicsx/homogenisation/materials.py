@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from textile_fenicsx.errors import FormatError, TextileError, check_positive
-from textile_fenicsx.homogenise.constants import orthotropic_stiffness
+from textile_fenicsx.homogenisation.constants import orthotropic_stiffness
 
 __all__ = ["PRESETS", "Isotropic", "Material", "Orthotropic", "TransverselyIsotropic", "chamis", "material",
            "read_material", "yarn_material"]

@@ -13,8 +13,8 @@ import ufl
 
 import dolfinx
 from textile_fenicsx.forms.conduction import conduction_cell_forms
-from textile_fenicsx.homogenise.cellproblem import CellProblem
-from textile_fenicsx.homogenise.periodic import Box
+from textile_fenicsx.homogenisation.cellproblem import CellProblem
+from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ThermalCellProblem"]
 
