@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer sweep clean
+.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer bench-volume sweep clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -18,6 +18,8 @@ help:
 	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
 	@echo "make bench-outer  CG with yarn-block and multigrid preconditioners on the contact steps' matrices (satin4,"
 	@echo "                  seed 0.25): why the steps use a direct solve (~1 min); table on stdout"
+	@echo "make bench-volume volume-mesh + homogenise of the corrected satin4 (voxel and tet, 1 and 2 ranks): seconds,"
+	@echo "                  dofs, peak memory; table + $(OUT)/volume_bench.json"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
 	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
 	@echo "                  2 ranks) in the image as a non-root user and compare them with bin/fenicsx-env's, run"
@@ -56,6 +58,9 @@ bench:
 
 bench-outer:
 	$(ENV) python3 bench/outer_solve.py
+
+bench-volume:
+	$(ENV) python3 bench/volume_bench.py --out $(OUT)/volume_bench.json
 
 sweep:
 	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json

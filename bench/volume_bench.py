@@ -1,0 +1,104 @@
+"""The volume stage's bench (make bench-volume): volume-mesh + homogenise of the corrected satin4.
+
+The 4-harness satin (reference/models/satin4.tg3) is corrected at seed 0.5 by the default command
+(and, for the tet mesh, with the tet mesher's gap held: `solve --min-gap`), then, as a user runs
+them, each in a fresh process, serially and on 2 ranks:
+
+    textile-fenicsx volume-mesh corrected.tg3 --kind KIND --size H --out DIR
+    textile-fenicsx homogenise DIR/volume.xdmf --out DIR
+
+It reports per command the wall time, the peak resident memory of the largest process, the mesh's
+elements, the cell problems' unknowns and CG iterations, and writes output/volume_bench.json:
+
+    python3 bench/volume_bench.py [--kinds voxel tet] [--ranks 1 2] [--sizes voxel=0.2 tet=0.25]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+MODEL = REPO / "reference" / "models" / "satin4.tg3"
+
+
+# Runs a command and prints the peak resident memory of its largest process [kB] on its last line.
+_PEAK = ("import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
+         "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(r.returncode)")
+
+
+def timed(command: list[str], ranks: int = 1) -> dict:
+    """Run a command (under mpirun -n ranks if > 1) in a fresh process: its wall time and the peak
+    resident memory of its largest process [GB]; raises if it fails."""
+    mpi = ["mpirun", "-n", str(ranks)] if ranks > 1 else []
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", _PEAK, *mpi, sys.executable, "-m", "textile_fenicsx", *command],
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
+    peak = float(proc.stderr.strip().splitlines()[-1]) / 1e6
+    return {"seconds": wall, "peak_gb": peak, "stdout": proc.stdout.strip()}
+
+
+def corrected(folder: Path, gap: bool) -> Path:
+    """satin4 corrected at seed 0.5 by the default command (with the tet mesher's gap if asked)."""
+    extra = ["--volume-mesh", "tet", "--volume-size", "1.0"] if gap else []  # the gap, and a quick mesh
+    timed(["solve", str(MODEL), "--seed", "0.5", "--no-figures", *extra, "--out", str(folder)])
+    return folder / "corrected.tg3"
+
+
+def case(model: Path, kind: str, size: float, ranks: int, folder: Path) -> dict:
+    mesh = timed(["volume-mesh", str(model), "--kind", kind, "--size", str(size), "--out", str(folder)], ranks)
+    homog = timed(["homogenise", str(folder / "volume.xdmf"), "--out", str(folder)], ranks)
+    report = json.loads((folder / "mesh_report.json").read_text())
+    stiffness = json.loads((folder / "stiffness.json").read_text())
+    return {"kind": kind, "size": size, "ranks": ranks, "elements": report["elements"],
+            "dofs": stiffness["dofs"], "iterations": stiffness["iterations"],
+            "mesh_s": mesh["seconds"], "mesh_peak_gb": mesh["peak_gb"],
+            "homogenise_s": homog["seconds"], "homogenise_peak_gb": homog["peak_gb"],
+            "total_s": mesh["seconds"] + homog["seconds"], "stages_s": stiffness["seconds"],
+            "constants": stiffness["engineering_constants"], "vf": stiffness["fibre_volume_fraction"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--kinds", nargs="+", default=["voxel", "tet"])
+    parser.add_argument("--ranks", nargs="+", type=int, default=[1, 2])
+    parser.add_argument("--sizes", nargs="+", default=["voxel=0.2", "tet=0.25"], metavar="KIND=H")
+    parser.add_argument("--out", type=Path, default=REPO / "output" / "volume_bench.json")
+    args = parser.parse_args()
+    sizes = {k: float(v) for k, v in (s.split("=") for s in args.sizes)}
+    records = []
+    with tempfile.TemporaryDirectory(prefix="volume-bench-") as tmp:
+        tmp = Path(tmp)
+        models = {kind: corrected(tmp / f"solve_{kind}", kind == "tet") for kind in args.kinds}
+        for kind in args.kinds:
+            for ranks in args.ranks:
+                print(f"volume bench: {kind} at {sizes[kind]} mm on {ranks} rank(s)", file=sys.stderr, flush=True)
+                records.append(case(models[kind], kind, sizes[kind], ranks, tmp / f"{kind}_{ranks}"))
+                r = records[-1]
+                print(f"volume bench: {r['elements']} elements, {r['dofs']['elasticity']} dofs, mesh "
+                      f"{r['mesh_s']:.1f} s, homogenise {r['homogenise_s']:.1f} s", file=sys.stderr, flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"machine": os.uname().nodename, "load": os.getloadavg(), "records": records},
+                                   indent=1))
+    print("| kind | size mm | ranks | elements | dofs | CG its (6 cases) | volume-mesh | homogenise | total | "
+          "peak GB (mesh / homogenise) | Ex MPa | Vf |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in records:
+        peaks = f"{r['mesh_peak_gb']:.2f} / {r['homogenise_peak_gb']:.2f}"
+        print(f"| {r['kind']} | {r['size']:g} | {r['ranks']} | {r['elements']} | {r['dofs']['elasticity']} | "
+              f"{min(r['iterations']['elasticity'])}-{max(r['iterations']['elasticity'])} | {r['mesh_s']:.1f} s | "
+              f"{r['homogenise_s']:.1f} s | {r['total_s']:.1f} s | {peaks} | {r['constants']['Ex']:.0f} | "
+              f"{r['vf']:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
