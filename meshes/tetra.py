@@ -464,39 +464,3 @@ def _report(textile, mesh, vol, quality, gamma, contact, gap, options, times, pa
         "periodicity": {**periodic_mismatch(mesh.points, Box(tuple(mesh.lo), tuple(mesh.hi))),
                         "face_pairs": {"xyz"[p[0]]: len(p[1]) for p in pairs}},
     }
-
-
-def write_msh(mesh: TetMesh, path: str | Path) -> Path:
-    """Write the mesh as gmsh's .msh 4.1 at `path`: one discrete volume and one named physical group
-    per phase ("matrix", then the yarns' names; group tag = phase + 1), nodes and tets as in `mesh`
-    (node k has tag k + 1). Call it on the rank that holds the mesh."""
-    import gmsh
-
-    path = Path(path)
-    initialised = gmsh.isInitialized()
-    if not initialised:
-        gmsh.initialize(interruptible=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("tet-write")
-        order = np.argsort(mesh.phase, kind="stable")
-        first = True
-        for ph, name in enumerate(mesh.names):
-            k = order[mesh.phase[order] == ph]
-            if not len(k):
-                continue
-            vol = gmsh.model.addDiscreteEntity(3)
-            if first:  # every node on the first volume
-                gmsh.model.mesh.addNodes(3, vol, np.arange(1, len(mesh.points) + 1), mesh.points.ravel())
-                first = False
-            start = int(np.sum(mesh.phase < ph)) + 1
-            gmsh.model.mesh.addElementsByType(vol, 4, np.arange(start, start + len(k)), (mesh.tets[k] + 1).ravel())
-            gmsh.model.addPhysicalGroup(3, [vol], ph + 1, name=name)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-        gmsh.option.setNumber("Mesh.Binary", 1)
-        gmsh.write(str(path))
-    finally:
-        gmsh.model.remove()
-        if not initialised:
-            gmsh.finalize()
-    return path

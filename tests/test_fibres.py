@@ -77,6 +77,9 @@ def test_bad_fibre_units_name_the_attribute(reference_dir, tmp_path):
 
 
 def test_a_model_without_fibre_data_gets_the_stated_default(reference_dir, caplog):
+    from textile_fenicsx import metrics
+
+    metrics._WARNED.clear()  # the warning is given once per model and process
     t = read_tg3(reference_dir / "models" / "plain.tg3")
     vf, source = yarn_fibre_fractions(t)
     assert source == "default" and np.all(np.array(vf) == fibres.DEFAULT_YARN_VF)

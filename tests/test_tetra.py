@@ -6,7 +6,7 @@ import pytest
 from textile_fenicsx.config import load_model
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.meshes import tetra_checks as checks
-from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh, write_msh
+from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh
 from textile_fenicsx.meshes.volume import Box, periodic_mismatch
 from textile_fenicsx.solver import SolverOptions
 
@@ -97,28 +97,32 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     """The corrected loose plain weave at a coarse size: periodic nodes, no inverted or empty tet,
     phases consistent with the model, yarn volumes within 1 %, quality above the stated bound,
     fibre directions on the path; written as .msh with one named group per phase."""
+    from textile_fenicsx.volume_files import write_msh
+    from textile_fenicsx.volumes import VolumeOptions, volume_mesh
+
     gapped, _ = loose_plain
-    mesh = tet_mesh(gapped, TetOptions(size=0.3, gap=GAP), comm)
+    mesh = volume_mesh(gapped, VolumeOptions("tet", 0.3, gap=GAP, yarn_vf=0.6), comm)
     if comm.rank != 0:
         assert mesh is None
         return
     r = mesh.report
     assert r["periodicity"]["periodic"] and r["periodicity"]["x"]["plus"] > 0 and r["periodicity"]["z"]["plus"] > 0
-    vol = checks.signed_volumes(mesh.points, mesh.tets)
+    vol = checks.signed_volumes(mesh.points, mesh.cells)
     assert vol.min() > 0
     assert r["quality"]["min"] >= 0.02
     assert r["volume"]["worst_error_percent"] < 1.0
+    assert max(abs(y["relative_error"]) for y in r["yarns"]) < 0.01
     assert r["phases"]["in_two_yarns"] == 0
     assert r["phases"]["volume"] < 0.01 * sum(v["model_mm3"] for v in r["volume"]["per_yarn"])
     assert r["fibre_angle_deg"]["within_2deg"] >= 0.99
-    assert set(np.unique(mesh.phase)) == set(range(len(mesh.names)))
-    path = write_msh(mesh, mpi_tmp_path / "volume.msh")
+    assert set(np.unique(mesh.phase)) == set(range(len(mesh.yarn_names) + 1))
+    write_msh(mesh, mpi_tmp_path / "volume.msh")
     import meshio
 
-    back = meshio.read(path)
+    back = meshio.read(mpi_tmp_path / "volume.msh")
     assert len(back.points) == len(mesh.points)
-    assert sum(len(c.data) for c in back.cells if c.type == "tetra") == len(mesh.tets)
-    assert set(back.field_data) == set(mesh.names)
+    assert sum(len(c.data) for c in back.cells if c.type == "tetra") == len(mesh.cells)
+    assert set(back.field_data) == {"matrix", *mesh.yarn_names}
 
 
 @pytest.mark.sweep

@@ -21,6 +21,9 @@ from textile_fenicsx.limits import MAX_GRID, check_count
 from textile_fenicsx.textile import Columns, Textile
 
 log = logging.getLogger(__name__)
+# models already warned of their missing fibre data (once per model and process: a run measures the
+# input and its corrected model, and meshes it)
+_WARNED: set[str] = set()
 
 
 def _clipped(textile: Textile, col: Columns) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +167,8 @@ def yarn_fibre_fractions(textile: Textile) -> tuple[list[float], str]:
             fractions.append(DEFAULT_YARN_VF)
         else:
             fractions.append(area / mean_section_area(y, textile.resolution))
-    if missing:
+    if missing and textile.name.removesuffix("_corrected") not in _WARNED:
+        _WARNED.add(textile.name.removesuffix("_corrected"))
         log.warning("%s: no fibre data (fibres per yarn and diameter, fibre area, or linear density and fibre "
                     "density) for %s; their fibre volume fraction is taken as %g", textile.name,
                     ", ".join(missing[:3]) + (f" and {len(missing) - 3} more" if len(missing) > 3 else ""),
