@@ -35,7 +35,7 @@ import numpy as np
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
-from textile_fenicsx.errors import GeometryError, TextileError, check_positive
+from textile_fenicsx.errors import GeometryError, MeshError, TextileError, check_positive
 from textile_fenicsx.meshes import tetra_checks as checks
 from textile_fenicsx.meshes import tetra_solids as solids
 from textile_fenicsx.meshes.volume import Box, periodic_mismatch
@@ -331,7 +331,8 @@ def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Com
         except TextileError as e:
             error = e
         except Exception as e:  # gmsh's own errors, reported on every rank
-            error = GeometryError(f"gmsh could not make the tet mesh of {textile.name!r}: {e}")
+            error = MeshError(f"gmsh could not make the tet mesh of {textile.name!r}: {e}; try another --size or "
+                              "--gap, or --kind voxel")
     error = comm.bcast(error, root=0)
     if error is not None:
         raise error

@@ -15,7 +15,7 @@ import sys
 import traceback
 
 from textile_fenicsx.arguments import build_parser
-from textile_fenicsx.errors import OutputError, TextileError
+from textile_fenicsx.errors import MeshError, OutputError, TextileError
 
 __all__ = ["EXIT_FAILED", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "build_parser", "main"]
 
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.run(args)
     except TextileError as e:
         return _fail(EXIT_INPUT, str(e), getattr(e, "collective", False))
-    except (SolverError, OutputError) as e:
+    except (SolverError, MeshError, OutputError) as e:
         return _fail(EXIT_FAILED, str(e), getattr(e, "collective", False))
     except KeyboardInterrupt as e:
         return _fail(EXIT_INTERRUPTED, f"interrupted ({str(e) or 'SIGINT'}); no output was written")

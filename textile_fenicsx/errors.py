@@ -17,6 +17,10 @@ class SolverError(RuntimeError):
     """A linear or nonlinear solve did not converge, or gave a non-finite answer."""
 
 
+class MeshError(RuntimeError):
+    """A mesher that failed on input it accepted (gmsh's own error): the run failed, not the input."""
+
+
 class OutputError(RuntimeError):
     """An output folder that cannot be written now (another run is writing it)."""
 

@@ -17,7 +17,7 @@ import numpy as np
 from mpi4py import MPI
 
 from textile_fenicsx import limits
-from textile_fenicsx.errors import TextileError
+from textile_fenicsx.errors import MeshError, TextileError
 from textile_fenicsx.meshes.volume import KINDS, VolumeMesh, cell_box
 from textile_fenicsx.textile import Textile
 
@@ -92,7 +92,7 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
                 result = voxel_mesh(textile, cell_box(textile, options.z_range), options.size, vf)
             else:
                 result = _tet(textile, options, vf)
-        except TextileError as e:
+        except (TextileError, MeshError) as e:
             error = e
     error = comm.bcast(error, root=0)
     if error is not None:
