@@ -324,7 +324,8 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
 def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Comm = MPI.COMM_WORLD) -> TetMesh | None:
     """The cell's conforming periodic tet mesh (on rank 0; None on the other ranks). Raises the same
     TextileError on every rank if the model is refused or gmsh fails (never hangs)."""
-    result, error = None, None
+    result: TetMesh | None = None
+    error: Exception | None = None
     if comm.rank == 0:
         try:
             result = _tet_mesh(textile, options)
