@@ -34,7 +34,7 @@ demo:
 	$(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/satin_4hs python3 demos/satin_4hs.py
 
 demos:
-	for d in satin_4hs orthogonal_3d mesh_convergence parameter_study plate_c0ip coupon_edges; do \
+	for d in satin_4hs orthogonal_3d mesh_convergence parameter_study plate_c0ip coupon_edges homogenise_satin; do \
 	  $(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/$$d python3 demos/$$d.py || exit 1; done
 
 test: test-serial test-mpi
