@@ -11,6 +11,10 @@ It reports per command the wall time, the peak resident memory of the largest pr
 elements, the cell problems' unknowns and CG iterations, and writes output/volume_bench.json:
 
     python3 bench/volume_bench.py [--kinds voxel tet] [--ranks 1 2] [--sizes voxel=0.2 tet=0.25]
+                                  [--degree 2]
+
+Several sizes per kind (`--sizes voxel=0.2,0.1 tet=0.35,0.25`) make a refinement study: the table then
+gives each engineering constant's change from the size before, and voxel against tet at the finest.
 """
 
 from __future__ import annotations
@@ -56,12 +60,12 @@ def corrected(folder: Path, gap: bool) -> Path:
     return folder / "corrected.tg3"
 
 
-def case(model: Path, kind: str, size: float, ranks: int, folder: Path) -> dict:
+def case(model: Path, kind: str, size: float, ranks: int, folder: Path, degree: int = 2) -> dict:
     mesh = timed(["volume-mesh", str(model), "--kind", kind, "--size", str(size), "--out", str(folder)], ranks)
-    homog = timed(["homogenise", str(folder / "volume.xdmf"), "--out", str(folder)], ranks)
+    homog = timed(["homogenise", str(folder / "volume.xdmf"), "--degree", str(degree), "--out", str(folder)], ranks)
     report = json.loads((folder / "mesh_report.json").read_text())
     stiffness = json.loads((folder / "stiffness.json").read_text())
-    return {"kind": kind, "size": size, "ranks": ranks, "elements": report["elements"],
+    return {"kind": kind, "size": size, "ranks": ranks, "degree": degree, "elements": report["elements"],
             "dofs": stiffness["dofs"], "iterations": stiffness["iterations"],
             "mesh_s": mesh["seconds"], "mesh_cpu_s": mesh["cpu_seconds"], "mesh_peak_gb": mesh["peak_gb"],
             "homogenise_s": homog["seconds"], "homogenise_cpu_s": homog["cpu_seconds"],
@@ -74,21 +78,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--kinds", nargs="+", default=["voxel", "tet"])
     parser.add_argument("--ranks", nargs="+", type=int, default=[1, 2])
-    parser.add_argument("--sizes", nargs="+", default=["voxel=0.2", "tet=0.25"], metavar="KIND=H")
+    parser.add_argument("--sizes", nargs="+", default=["voxel=0.2", "tet=0.25"], metavar="KIND=H[,H...]")
+    parser.add_argument("--degree", type=int, default=2, choices=[1, 2])
     parser.add_argument("--out", type=Path, default=REPO / "output" / "volume_bench.json")
     args = parser.parse_args()
-    sizes = {k: float(v) for k, v in (s.split("=") for s in args.sizes)}
+    sizes = {k: [float(h) for h in v.split(",")] for k, v in (s.split("=") for s in args.sizes)}
     records = []
     with tempfile.TemporaryDirectory(prefix="volume-bench-") as tmp:
         tmp = Path(tmp)
         models = {kind: corrected(tmp / f"solve_{kind}", kind == "tet") for kind in args.kinds}
         for kind in args.kinds:
-            for ranks in args.ranks:
-                print(f"volume bench: {kind} at {sizes[kind]} mm on {ranks} rank(s)", file=sys.stderr, flush=True)
-                records.append(case(models[kind], kind, sizes[kind], ranks, tmp / f"{kind}_{ranks}"))
-                r = records[-1]
-                print(f"volume bench: {r['elements']} elements, {r['dofs']['elasticity']} dofs, mesh "
-                      f"{r['mesh_s']:.1f} s, homogenise {r['homogenise_s']:.1f} s", file=sys.stderr, flush=True)
+            for size in sizes[kind]:
+                for ranks in args.ranks:
+                    print(f"volume bench: {kind} at {size} mm on {ranks} rank(s)", file=sys.stderr, flush=True)
+                    records.append(case(models[kind], kind, size, ranks, tmp / f"{kind}_{size}_{ranks}", args.degree))
+                    r = records[-1]
+                    print(f"volume bench: {r['elements']} elements, {r['dofs']['elasticity']} dofs, mesh "
+                          f"{r['mesh_s']:.1f} s, homogenise {r['homogenise_s']:.1f} s", file=sys.stderr, flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"machine": os.uname().nodename, "load": os.getloadavg(), "records": records},
                                    indent=1))
@@ -103,6 +109,33 @@ def main() -> None:
               f"({r['mesh_cpu_s']:.0f}) | {r['homogenise_s']:.1f} s ({r['homogenise_cpu_s']:.0f}) | "
               f"{r['total_s']:.1f} s | {peaks} | {r['constants']['Ex']:.0f} | "
               f"{r['vf']:.3f} |")
+    print(changes(records))
+
+
+def changes(records: list[dict], keys: tuple = ("Ex", "Ey", "Ez", "Gxy", "Gxz", "Gyz", "nuxy", "nuxz", "nuyz")) -> str:
+    """Each constant's change from the size before (same kind, one rank), and voxel against tet at the
+    finest sizes [%]."""
+    lines = []
+    serial = [r for r in records if r["ranks"] == min(x["ranks"] for x in records)]
+    for kind in dict.fromkeys(r["kind"] for r in serial):
+        runs = [r for r in serial if r["kind"] == kind]
+        for a, b in zip(runs, runs[1:]):
+            lines.append(f"{kind} {a['size']:g} -> {b['size']:g} mm: " + ", ".join(
+                f"{k} {100 * (b['constants'][k] / a['constants'][k] - 1):+.2f} %" for k in keys))
+    finest = {r["kind"]: r for r in serial}  # the last (finest) of each kind
+    if {"voxel", "tet"} <= set(finest):
+        v, t = finest["voxel"], finest["tet"]
+        lines.append("voxel against tet: " + ", ".join(
+            f"{k} {100 * (v['constants'][k] / t['constants'][k] - 1):+.2f} %" for k in keys))
+    by_size = {}
+    for r in records:
+        by_size.setdefault((r["kind"], r["size"]), []).append(r)
+    for (kind, size), rs in by_size.items():
+        if len(rs) > 1:
+            worst = max(abs(rs[0]["constants"][k] / r["constants"][k] - 1) for r in rs[1:] for k in keys)
+            lines.append(f"{kind} {size:g} mm, {rs[0]['ranks']} against {', '.join(str(r['ranks']) for r in rs[1:])} "
+                         f"ranks: constants within {worst:.1e}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
