@@ -14,7 +14,7 @@ about the built textile (type, yarn counts, domain box, section types, refine fl
 size and sha256. Everything is fixed in this script: re-running gives byte-identical files.
 --only rebuilds some models and leaves index.json alone; --list prints the names.
 
-The family (40 models):
+The family (49 models):
   2D weaves, CTextileWeave2D(n, n, spacing, thickness, refine), pattern by SwapPosition(x, y):
     every pattern at a middle setting (spacing 2.0, width/spacing 0.9, height/width 0.2, ellipse,
     refine off): plain, 2/2 twill, 3/1 twill, 4-harness crowfoot satin, 5- and 8-harness satin,
@@ -36,6 +36,29 @@ The family (40 models):
     CTextileAngleInterlock: 2/3 layers over 6 wefts, 3/4 layers over 8 wefts.
     TexGen's 3D weaves leave FabricThickness uninitialised (the file would change from run to run),
     so each gets SetThickness(default domain height / 1.1) last; no yarn or domain changes.
+  3D weaves with fibre data (FIBRES: TexGen has none by default, its setters take SI units, so these
+  are typical carbon tows in those units: 7e-06 m fibres of 1800 kg/m^3, 12k warp and weft tows of
+  0.0008 kg/m, 3k binders of 0.0002 kg/m), set per yarn type as TexGen's 3D weave wizard does
+  (SetFibreDiameter, SetFibresPerYarn, SetFibreDensity, SetYarnLinearDensity) on the orthogonal
+  weaves; the layer-to-layer and angle-interlock classes drop per-type data (their yarns never get
+  it), so theirs is set as the GUI's property pages do: the tow's on the textile (the default of
+  every yarn without its own) and the binder tow's on each binder yarn; refine on and off:
+    CTextileOrthogonal, refine off (the reference dimensions), and refine on (bRefine True) with a
+    target thickness, in the wizard's order (SetThickness, fibre data, SetMaxVolFraction(0.78) before
+    the binder swaps; AssignDefaultDomain, then SetDomainZValues): 2 warp / 3 weft layers at their
+    nominal 1.92 mm (the outer wefts become hybrid sections: a power-ellipse half and a flat half),
+    1.8 mm and 1.7 mm (the warps become polygons with two mid-node sections per segment; TexGen says
+    "Can't reduce outer weft and binder to fit without exceeding max Vf" and saves it all the same),
+    and 3 warp / 4 weft layers at 2.4 mm (nominal 2.57);
+    CTextileLayerToLayer (2/3 layers, 3 binder layers, pattern 0011) and CTextileAngleInterlock
+    (2/3 layers over 6 wefts): TexGen has no refine for these (the layer-to-layer constructor's bool
+    is bShapeBinders; SetThickness only records the number), so refine off only.
+    CTextile3DWeave, the base class, is no builder of its own: pytexgen 1.2.1 has no BuildTextile for
+    it and crashes (segmentation fault) when it builds one; its bRefine is read by CTextileOrthogonal
+    alone.
+  Binders thicker than the 0.22 mm gap between weft columns (their physics is issue 27's item 4): the
+  orthogonal weave with the reference binder 0.3 mm high (1.375 x 0.3, power 0.8), and the
+  layer-to-layer weave (pattern 0011) with the larger elliptical binder (1.0 x 0.3, power 1.0).
 Names: x yarns run along x (TexGen's X yarns, spaced in y), y yarns along y. "w" is width/spacing,
 "h" height/width; "s2x3" a cell with y yarns 2.0 apart along x and x yarns 3.0 apart along y.
 """
@@ -69,6 +92,14 @@ PATTERNS = {
 WARP = dict(width=3.6, height=0.35, spacing=3.8, power=0.6)
 WEFT = dict(width=2.58, height=0.3, spacing=2.8, power=0.6)
 BINDER = dict(width=1.375, height=0.16, spacing=1.4, power=0.8)
+THICK_BINDER = dict(width=1.0, height=0.3, spacing=1.2, power=1.0)  # thicker than the gap between weft columns
+# Fibre data of the 3D weaves "with fibres", in TexGen's default units (those its setters assume):
+# typical carbon, 7 um fibres of 1800 kg/m^3, 12k tows (0.8 g/m) for warps and wefts, 3k (0.2 g/m) for
+# binders, so that every yarn's fibre fraction is physical (warp 0.42, weft 0.68, binder 0.62)
+FIBRES = dict(diameter_m=7e-06, density_kg_m3=1800.0,
+              per_yarn=dict(warp=12000, weft=12000, binder=3000),
+              linear_density_kg_m=dict(warp=0.0008, weft=0.0008, binder=0.0002))
+MAX_VOLUME_FRACTION = 0.78  # TexGen's default for refine (the wizard's too)
 
 
 def num(x):
@@ -156,24 +187,25 @@ def family():
         specs.append(weave_spec(pattern, refine=True))
     specs.append(weave_spec("plain", ws=0.98, refine=True))
 
-    def ortho(name, layers, binder=BINDER, note=""):
+    def ortho(name, layers, binder=BINDER, note="", fibres=False, refine=False, thickness=None):
         return dict(name=name, kind="orthogonal", family="3D orthogonal", nx=4, ny=4, layers=layers,
-                    warp=WARP, weft=WEFT, binder=binder, warp_ratio=1, binder_ratio=1, refine=False,
+                    warp=WARP, weft=WEFT, binder=binder, warp_ratio=1, binder_ratio=1, refine=refine,
                     # binders are x yarns 1 and 3; swapped to the bottom at these weft columns
-                    binder_swaps=[(1, 1), (3, 1), (0, 3), (2, 3)], note=note)
+                    binder_swaps=[(1, 1), (3, 1), (0, 3), (2, 3)], note=note,
+                    **_fibre_options(fibres, refine, thickness))
 
     specs += [
         ortho("ortho_w2f3", (2, 3), note="the calls of reference/models/ortho.api.txt"),
         ortho("ortho_w3f4", (3, 4), note="one more warp and weft layer"),
-        ortho("ortho_w2f3_binder1.0x0.3", (2, 3), dict(width=1.0, height=0.3, spacing=1.2, power=1.0),
-              note="larger, elliptical binders"),
+        ortho("ortho_w2f3_binder1.0x0.3", (2, 3), THICK_BINDER, note="larger, elliptical binders"),
     ]
 
-    def l2l(name, layers, binder_layers, offsets, note):
+    def l2l(name, layers, binder_layers, offsets, note, binder=BINDER, fibres=False):
         ny = len(offsets[0])
         return dict(name=name, kind="layertolayer", family="3D layer-to-layer", nx=4, ny=ny, layers=layers,
-                    binder_layers=binder_layers, warp=WARP, weft=WEFT, binder=BINDER, warp_ratio=1,
-                    binder_ratio=1, binder_offsets={1: offsets[0], 3: offsets[1]}, note=note)
+                    binder_layers=binder_layers, warp=WARP, weft=WEFT, binder=binder, warp_ratio=1,
+                    binder_ratio=1, binder_offsets={1: offsets[0], 3: offsets[1]}, note=note,
+                    **_fibre_options(fibres, False, None))
 
     specs += [
         l2l("l2l_w2f3_b3_0011", (2, 3), 3, [[0, 0, 1, 1], [1, 1, 0, 0]],
@@ -184,10 +216,10 @@ def family():
             "as l2l_w2f3_b3_0011 over 6 wefts (longer floats)"),
     ]
 
-    def ai(name, layers, ny, tops, note):
+    def ai(name, layers, ny, tops, note, fibres=False):
         return dict(name=name, kind="angleinterlock", family="3D angle interlock", nx=4, ny=ny, layers=layers,
                     warp=WARP, weft=WEFT, binder=BINDER, warp_ratio=1, binder_ratio=1, binder_tops=tops,
-                    note=note)
+                    note=note, **_fibre_options(fibres, False, None))
 
     specs += [
         ai("angleinterlock_w2f3_y6", (2, 3), 6, [(0, 1), (3, 3)],
@@ -195,7 +227,43 @@ def family():
         ai("angleinterlock_w3f4_y8", (3, 4), 8, [(0, 1), (4, 3)],
            "through the thickness: binder x yarns 1 and 3 top at weft columns 0 and 4"),
     ]
+
+    # with fibre data, refine off and on (issue 27, item 1)
+    specs += [
+        ortho("ortho_w2f3_fibres", (2, 3), note="ortho_w2f3 with fibre data", fibres=True),
+        ortho("ortho_w2f3_fibres_refine_t1.92", (2, 3), fibres=True, refine=True, thickness=1.92,
+              note="refine at the nominal thickness: hybrid outer wefts"),
+        ortho("ortho_w2f3_fibres_refine_t1.8", (2, 3), fibres=True, refine=True, thickness=1.8,
+              note="refine to 1.8 mm: hybrid outer wefts, power-ellipse binders"),
+        ortho("ortho_w2f3_fibres_refine_t1.7", (2, 3), fibres=True, refine=True, thickness=1.7,
+              note="refine to 1.7 mm: polygon warps with two mid-node sections per segment (TexGen: "
+                   "\"Can't reduce outer weft and binder to fit without exceeding max Vf\")"),
+        ortho("ortho_w3f4_fibres_refine_t2.4", (3, 4), fibres=True, refine=True, thickness=2.4,
+              note="3 warp / 4 weft layers refined to 2.4 mm (nominal 2.57)"),
+        l2l("l2l_w2f3_b3_0011_fibres", (2, 3), 3, [[0, 0, 1, 1], [1, 1, 0, 0]],
+            "l2l_w2f3_b3_0011 with fibre data (TexGen has no refine for layer-to-layer weaves)", fibres=True),
+        ai("angleinterlock_w2f3_y6_fibres", (2, 3), 6, [(0, 1), (3, 3)],
+           "angleinterlock_w2f3_y6 with fibre data (TexGen has no refine for angle interlocks)", fibres=True),
+    ]
+    # binders thicker than the gap between weft columns (issue 27, item 4)
+    specs += [
+        ortho("ortho_w2f3_binder1.375x0.3", (2, 3), dict(BINDER, height=0.3),
+              note="the reference binder 0.3 mm high, against a 0.22 mm gap between weft columns"),
+        l2l("l2l_w2f3_b3_0011_binder1.0x0.3", (2, 3), 3, [[0, 0, 1, 1], [1, 1, 0, 0]],
+            "l2l_w2f3_b3_0011 with the larger, elliptical binders of ortho_w2f3_binder1.0x0.3",
+            binder=THICK_BINDER),
+    ]
     return specs
+
+
+def _fibre_options(fibres, refine, thickness):
+    """The spec entries of a 3D weave's fibre data and refine target (none without fibre data)."""
+    if not fibres:
+        return {}
+    out = dict(fibres=FIBRES)
+    if refine:
+        out.update(target_thickness=thickness, max_volume_fraction=MAX_VOLUME_FRACTION)
+    return out
 
 
 # ---- building ----------------------------------------------------------------------------------
@@ -305,11 +373,70 @@ def start_3d(tc, s, cls, extra, signature, calls):
     return t0, t
 
 
-def finish_3d(t0, t, s, calls):
-    """Section powers, TexGen's default domain and the recorded fabric thickness."""
+def _fibre_calls(target, kind, f, code=None):
+    """The four fibre setters for a yarn kind ("warp", "weft", "binder") as (method, args) pairs:
+    per yarn type (code given: CTextile3DWeave's setters) or on one object (a textile or a yarn)."""
+    head = () if code is None else (code,)
+    return [("SetFibreDiameter", (*head, f["diameter_m"], "m")),
+            ("SetFibresPerYarn", (*head, f["per_yarn"][kind])),
+            ("SetFibreDensity", (*head, f["density_kg_m3"], "kg/m^3")),
+            ("SetYarnLinearDensity", (*head, f["linear_density_kg_m"][kind], "kg/m"))]
+
+
+def set_3d_fibres(tc, t0, s, calls):
+    """Fibre data per yarn type, as TexGen's 3D weave wizard sets it (CTextileOrthogonal passes it
+    on to its yarns), in TexGen's default units."""
+    f = s["fibres"]
+    for code, kind in ((tc.WARP, "warp"), (tc.WEFT, "weft"), (tc.BINDER, "binder")):
+        for method, args in _fibre_calls(t0, kind, f, code):
+            getattr(t0, method)(*args)
+            calls.append(f"t.{method}({kind.upper()}, {', '.join(fmt(a) for a in args[1:])})")
+
+
+def set_textile_fibres(tc, t0, s, calls):
+    """Fibre data of a layer-to-layer or angle-interlock weave, whose classes drop the per-type data
+    (they never pass it to their yarns): the warp and weft tow's on the textile (TexGen's default
+    for every yarn without its own, CTextile's setters), the binder tow's on each binder yarn (the
+    GUI's textile and yarn properties). After the build: the yarns are the built ones, and saved so."""
+    f = s["fibres"]
+    for method, args in _fibre_calls(t0, "warp", f):
+        getattr(tc.CTextile, method)(t0, *args)
+        calls.append(f"CTextile.{method}(t, {', '.join(fmt(a) for a in args)})")
+    binders = [i for i in range(t0.GetNumXYarns()) if t0.IsBinderYarn(i)]
+    for i in binders:
+        for yarn in t0.GetXYarns(i):
+            for method, args in _fibre_calls(yarn, "binder", f):
+                getattr(yarn, method)(*args)
+    calls.append(f"for i in {binders}:  # the binder x yarns\n    for yarn in t.GetXYarns(i):\n"
+                 + "".join(f"        yarn.{m}({', '.join(fmt(a) for a in args)})\n"
+                           for m, args in _fibre_calls(None, "binder", f)).rstrip("\n"))
+
+
+def set_3d_target(tc, t0, t, s, calls):
+    """An orthogonal weave's fibre data, and a refined one's target thickness and maximum volume
+    fraction (the wizard's order: before the binder swaps)."""
+    if "fibres" not in s or s["kind"] != "orthogonal":
+        return
+    if s.get("refine"):
+        t.SetThickness(s["target_thickness"])
+    set_3d_fibres(tc, t0, s, calls)
+    if s.get("refine"):
+        t.SetMaxVolFraction(s["max_volume_fraction"])
+
+
+def finish_3d(tc, t0, t, s, calls):
+    """Section powers, TexGen's default domain and the fabric thickness: a refined weave's target
+    (with the domain's z fitted to what TexGen built, SetDomainZValues, as the wizard does), else
+    the one the default domain was made for; then the fibre data of the weaves that do not take it
+    per yarn type."""
     set_3d_powers(t, s)
     t.AssignDefaultDomain()
-    set_3d_thickness(t0, t, calls)
+    if s.get("refine"):
+        t.SetDomainZValues()
+    else:
+        set_3d_thickness(t0, t, calls)
+    if "fibres" in s and s["kind"] != "orthogonal":
+        set_textile_fibres(tc, t0, s, calls)
     return t0
 
 
@@ -319,9 +446,10 @@ def build_orthogonal(tc, s, calls):
     set_3d_sizes(t, s)
     t.SetupLayers(*s["layers"])
     t.SetGapSize(0.0)
+    set_3d_target(tc, t0, t, s, calls)
     for cx, cy in s["binder_swaps"]:
         t.SwapBinderPosition(cx, cy)
-    return finish_3d(t0, t, s, calls)
+    return finish_3d(tc, t0, t, s, calls)
 
 
 def build_layertolayer(tc, s, calls):
@@ -329,19 +457,21 @@ def build_layertolayer(tc, s, calls):
                      "nX, nY, xSpacing, ySpacing, xHeight, yHeight, nBinderLayers", calls)
     t.SetupLayers(*s["layers"], s["binder_layers"])
     set_3d_sizes(t, s)
+    set_3d_target(tc, t0, t, s, calls)
     for yarn, offsets in s["binder_offsets"].items():
         for col, off in enumerate(offsets):
             t.SetBinderPosition(col, yarn, off)
-    return finish_3d(t0, t, s, calls)
+    return finish_3d(tc, t0, t, s, calls)
 
 
 def build_angleinterlock(tc, s, calls):
     t0, t = start_3d(tc, s, "CTextileAngleInterlock", (), "nX, nY, xSpacing, ySpacing, xHeight, yHeight", calls)
     t.SetupLayers(*s["layers"])
     set_3d_sizes(t, s)
+    set_3d_target(tc, t0, t, s, calls)
     for col, yarn in s["binder_tops"]:
         t.SetBinderYarnPositions(col, yarn)
-    return finish_3d(t0, t, s, calls)
+    return finish_3d(tc, t0, t, s, calls)
 
 
 BUILDERS = {"weave2d": build_weave2d, "orthogonal": build_orthogonal, "layertolayer": build_layertolayer,
@@ -370,6 +500,9 @@ def texgen_facts(t, s, path):
         facts["fabric_thickness"] = num(t.GetFabricThickness())
     else:
         facts["binder_x_yarns"] = [i for i in range(t.GetNumXYarns()) if t.IsBinderYarn(i)]
+    if "fibres" in s:
+        facts["fabric_thickness"] = num(t.GetFabricThickness())
+        facts["fibre_area_mm2"] = sorted({num(t.GetYarn(i).GetFibreArea("mm^2")) for i in range(t.GetNumYarns())})
     return facts
 
 

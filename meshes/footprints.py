@@ -7,11 +7,12 @@ the cell. `footprint_area` measures the part inside the cell, independently of a
 """
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from textile_fenicsx.queries import translations
-from textile_fenicsx.textile import Textile
+from textile_fenicsx.textile import Cell, Textile
 
-__all__ = ["footprint_area", "footprint_outlines"]
+__all__ = ["footprint_area", "footprint_outlines", "snap_to_neighbours"]
 
 
 def footprint_outlines(textile: Textile, i: int, spacing: float,
@@ -49,6 +50,76 @@ def footprint_outlines(textile: Textile, i: int, spacing: float,
         L = np.concatenate([left[(1 if n else 0):] + k * P + b for n, k in enumerate(ks)])
         result.append((R, L))
     return result
+
+
+def snap_to_neighbours(outlines: list[tuple[int, list[tuple[np.ndarray, np.ndarray]]]], tol: float,
+                       cell: Cell) -> list[tuple[int, list[tuple[np.ndarray, np.ndarray]]]]:
+    """The outlines [(yarn, [(right, left), ...]), ...] with every side chain that stays within
+    `tol` of an earlier yarn's chain (or of a periodic copy of it) wherever it is over the cell
+    replaced by that chain: two yarn edges that close are one edge. OpenCASCADE does not merge two
+    edges that leave each other at a tiny angle: the wedge between them has a corner of no angle,
+    which gmsh cannot mesh. TexGen's refined orthogonal weave has them in every weft column: an
+    outer weft whose width changes between nodes (2.58 to 2.64 mm) by a ramped blend leaves the
+    middle weft's edge tangentially."""
+    x0, x1, y0, y1 = cell.bounds
+    origin = np.array([x0, y0])
+    period = np.array([cell.lx, cell.ly]) if cell.periodic else None
+    out = []
+    done: list[np.ndarray] = []  # the chains of the yarns done so far
+    for i, sides in outlines:
+        if done:
+            owner = np.concatenate([np.full(len(c), k) for k, c in enumerate(done)])
+            near = _Near(np.vstack(done) - origin, period)
+            sides = [(_same_as(r, near, owner, done, tol, cell), _same_as(l_, near, owner, done, tol, cell))
+                     for r, l_ in sides]
+        out.append((i, sides))
+        done += [c for pair in sides for c in pair]
+    return out
+
+
+class _Near:
+    """The nearest points (NEIGHBOURS of them), across the periodic copies of the cell when it has a
+    period."""
+
+    NEIGHBOURS = 8
+
+    def __init__(self, points: np.ndarray, period: np.ndarray | None) -> None:
+        self.period = period
+        self.tree = cKDTree(np.mod(points, period) if period is not None else points,
+                            boxsize=period if period is not None else None)
+
+    def query(self, p: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """(distances, indices), each (len(p), NEIGHBOURS), nearest first; inf and n past tol."""
+        k = min(self.NEIGHBOURS, self.tree.n)
+        dist, idx = self.tree.query(np.mod(p, self.period) if self.period is not None else p, k=k,
+                                    distance_upper_bound=tol)
+        return np.asarray(dist).reshape(len(p), k), np.asarray(idx).reshape(len(p), k)
+
+
+def _same_as(chain: np.ndarray, near: _Near, owner: np.ndarray, chains: list[np.ndarray], tol: float,
+             cell: Cell) -> np.ndarray:
+    """The chain, or the earlier chain (moved by a whole number of cells) that every point of it
+    over the cell lies within tol of, but not all on it."""
+    x0, x1, y0, y1 = cell.bounds
+    inside = (chain[:, 0] >= x0) & (chain[:, 0] <= x1) & (chain[:, 1] >= y0) & (chain[:, 1] <= y1)
+    if not np.any(inside):
+        return chain
+    dist, nearest = near.query(chain[inside] - np.array([x0, y0]), tol)
+    owners = np.where(np.isfinite(dist), owner[np.minimum(nearest, len(owner) - 1)], -1)
+    for c in np.unique(owners[0][owners[0] >= 0]):
+        hits = owners == c
+        if not np.all(np.any(hits, axis=1)):
+            continue
+        if np.all(np.where(hits, dist, np.inf).min(axis=1) == 0):
+            return chain  # the same edge already
+        other = chains[c]
+        shift = np.zeros(2)  # the copy of that chain over this one (chains run over several cells)
+        if near.period is not None:
+            shift = np.round((np.median(chain, axis=0) - np.median(other, axis=0)) / near.period) * near.period
+        d, _ = cKDTree(other + shift).query(chain[inside], distance_upper_bound=tol)
+        if np.all(d < tol):
+            return other + shift
+    return chain
 
 
 def _clip_to_box(poly: np.ndarray, x0: float, x1: float, y0: float, y1: float) -> np.ndarray:

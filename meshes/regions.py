@@ -16,7 +16,7 @@ from textile_fenicsx.errors import GeometryError
 from textile_fenicsx.meshes.periodic_sides import box_with_marks, periodic_sides, side_marks, snap_to_sides
 from textile_fenicsx.textile import Cell
 
-__all__ = ["GROWTH", "gmsh_session", "region_mesh"]
+__all__ = ["GROWTH", "fresh_start", "gmsh_session", "region_mesh", "session_options"]
 
 # How fast element size may grow away from narrow regions (size change per unit distance).
 GROWTH = 1.0
@@ -31,11 +31,7 @@ def gmsh_session(owner: bool) -> Iterator[None]:
     initialised = gmsh.isInitialized()
     if not initialised:
         gmsh.initialize(interruptible=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    # OpenCASCADE's booleans on threads: the same meshes to the last bit (satin4, plain, twill22,
-    # our orthogonal weave), 15-20 % less time. Not gmsh's threaded 2D meshing: its meshes differ
-    # from run to run.
-    gmsh.option.setNumber("Geometry.OCCParallel", 1)
+    session_options()
     try:
         yield
     finally:
@@ -43,6 +39,31 @@ def gmsh_session(owner: bool) -> Iterator[None]:
             gmsh.model.remove()
         if not initialised:
             gmsh.finalize()
+
+
+def session_options() -> None:
+    """gmsh's options for the projected mesh that hold for a whole session (region_mesh sets the
+    others for each model)."""
+    import gmsh
+
+    gmsh.option.setNumber("General.Terminal", 0)
+    # OpenCASCADE's booleans on threads: the same meshes to the last bit (satin4, plain, twill22,
+    # our orthogonal weave), 15-20 % less time. Not gmsh's threaded 2D meshing: its meshes differ
+    # from run to run.
+    gmsh.option.setNumber("Geometry.OCCParallel", 1)
+
+
+def fresh_start() -> None:
+    """Everything gone from gmsh but the session (after a model it could not mesh): the models, and
+    the options back to gmsh's defaults and the session's. Removing the model alone is not enough:
+    after "Unable to recover the edge" the next model made in the same session meshed to no
+    triangles at all (gmsh 4.13, TexGen's refined orthogonal weave), unless the options were
+    restored."""
+    import gmsh
+
+    gmsh.clear()
+    gmsh.option.restoreDefaults()
+    session_options()
 
 
 def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,

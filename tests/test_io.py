@@ -190,7 +190,9 @@ def satin_tg3(reference_dir):
 @pytest.mark.serial
 @pytest.mark.parametrize("edit, message", [
     (lambda s: s[: len(s) // 2], "not valid XML"),
-    (lambda s: s.replace("CSectionEllipse", "CSectionHybrid", 1), "unsupported section type 'CSectionHybrid'"),
+    (lambda s: s.replace("CSectionEllipse", "CSectionBezier", 1), "unsupported section type 'CSectionBezier'"),
+    (lambda s: s.replace("CSectionEllipse", "CSectionHybrid", 1),
+     "CSectionHybrid: needs one <Section> per <Division>, at least one; has 0 divisions and 0 sections"),
     (lambda s: s.replace("CInterpolationBezier", "CInterpolationAdjusted", 1),
      "unsupported interpolation type 'CInterpolationAdjusted'"),
     (lambda s: s.replace("<Repeat ", "<Wobble ", 1), "unsupported element <Wobble>"),

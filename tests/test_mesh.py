@@ -9,9 +9,14 @@ import ufl
 from mpi4py import MPI
 
 import dolfinx
+from textile_fenicsx import commands
+from textile_fenicsx.arguments import build_parser
 from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.legs import plate_model
+from textile_fenicsx.meshes.footprints import snap_to_neighbours
 from textile_fenicsx.meshes.midsurface import mesh_statistics, mid_surfaces
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+from textile_fenicsx.textile import Cell
 from textile_fenicsx.tg3 import read_tg3
 from textile_fenicsx.weaves import build, crowfoot_satin
 
@@ -127,6 +132,48 @@ def test_too_steep_binder_is_refused(reference_dir):
         projected_mesh(t, MeshOptions(0.5))
     msg = str(err.value)
     assert "yarn 2" in msg and "too steep" in msg and "slope" in msg and "exceeds max_slope 10" in msg
+
+
+@pytest.mark.mpi
+def test_mesh_command_meshes_the_plates_the_solve_does(reference_dir, capsys, comm):
+    # Issue 27, item 6: `mesh` refused TexGen's orthogonal weave ("too steep, angle 90.0 deg") that
+    # `solve` cuts into crowns and legs and runs; now it meshes those crowns: the solve's 40806 dofs
+    # at seed 0.5 (reference/fabrics/ortho_w2f3 in docs/sweep.md), the binders' legs cut
+    args = build_parser().parse_args(["mesh", str(reference_dir / "models" / "ortho.tg3"), "--no-picture"])
+    assert commands.mesh(args) == 0
+    if comm.rank == 0:
+        stats = json.loads(capsys.readouterr().out)
+        assert stats["dofs_total"] == 40806 and stats["legs_cut"] == ["yarn 2", "yarn 5"]
+        assert len(stats["yarns"]) == 24  # 16 yarns whole, each binder in 4 crowns
+
+
+@pytest.mark.mpi
+@pytest.mark.slow
+def test_texgens_refined_orthogonal_weave_meshes(reference_dir):
+    # Its outer wefts widen from 2.58 to 2.64 mm between nodes by a ramped blend, leaving the middle
+    # weft's edge tangentially: OpenCASCADE leaves a wedge with a corner of no angle, which gmsh
+    # could not mesh ("Unable to recover the edge"); the edges that close are now made one
+    t = read_tg3(reference_dir / "fabrics" / "ortho_w2f3_fibres_refine_t1.8.tg3")
+    pm = projected_mesh(plate_model(t, 0.5).plate, MeshOptions(0.5))
+    assert pm.stats["cells"] > 5000 and pm.stats["min_angle_deg"] > 5
+
+
+@pytest.mark.serial
+def test_edges_that_stay_close_are_made_one():
+    # A chain that leaves another tangentially and stays within the tolerance over the cell takes
+    # that chain; one that does not stay that close, or a yarn's own first chain, keeps its own
+    y = np.linspace(-1.0, 5.0, 61)
+    straight = np.column_stack((np.full_like(y, 1.0), y))
+    bulge = np.column_stack((1.0 + 0.03 * np.sin(np.pi * np.clip(y, 0, 4) / 4) ** 2, y))
+    far = straight + [0.2, 0.0]
+    outlines = [(0, [(straight, far)]), (1, [(bulge, far + [0.5, 0])])]
+    cell = Cell(4.0, 4.0, periodic=False)
+    (_, [(r0, l0)]), (_, [(r1, l1)]) = snap_to_neighbours(outlines, 0.05, cell)
+    assert np.array_equal(r0, straight) and np.array_equal(l0, far)
+    assert np.array_equal(r1, straight)  # within 0.03 mm all along: one edge
+    assert np.array_equal(l1, far + [0.5, 0])  # 0.5 mm from the nearest: its own
+    (_, _), (_, [(r1, _)]) = snap_to_neighbours(outlines, 0.02, cell)
+    assert np.array_equal(r1, bulge)  # 0.03 mm apart somewhere: not within 0.02
 
 
 @pytest.mark.serial

@@ -65,6 +65,25 @@ def test_texgen_3d_weave_solves_and_passes_its_check(name):
 
 
 @pytest.mark.serial
+def test_a_binder_that_turns_back_in_plan_is_cut_there():
+    # TexGen's layer-to-layer weave with binders thicker than the gap between weft columns puts a
+    # binder node past the next one (x 11.027, 11.24, 11.16 mm): the binder loops back 0.08 mm at
+    # each leg, two heights over one place, which no plate can be (its footprint folded over
+    # itself, and gmsh's periodic sides did not pair: "8 vs 9 curves"). That stretch is a leg now.
+    t = load_model(REPO / "reference" / "fabrics" / "l2l_w2f3_b3_0011_binder1.0x0.3.tg3")
+    binder = t.yarns[2]
+    s = np.linspace(0, binder.n_segments, 4000)
+    _, tan = binder.centreline(s)
+    assert np.any(tan[:, 0] < 0)  # it does turn back
+    split = split_steep(t, 0.25)
+    crowns = [(c, y) for c, y in zip(split.crowns, split.plate.yarns) if c.yarn == 2]
+    assert crowns and not any(c.whole for c, _ in crowns)
+    for _, y in crowns:  # every crown runs forward: a height over the plane
+        _, tan = y.centreline(np.linspace(0, y.n_segments, 400))
+        assert np.all(tan[:, 0] > 0)
+
+
+@pytest.mark.serial
 def test_only_3d_weaves_state_the_thickness_they_are_woven_to():
     # TexGen writes FabricThickness for every weave; only a 3D weave's is the preform's (its
     # classes fit the yarns into it); a 2D weave's is its yarns' nominal stack

@@ -104,10 +104,12 @@ def _mesh_command(subparsers: Subparsers) -> None:
     p = subparsers.add_parser(
         "mesh", help="mesh a model's projected regions and print mesh statistics as JSON",
         description="Mesh the unit cell by the sets of yarns covering it (gmsh; periodic sides; element "
-        "size = seed) and sample each yarn's mid-surface. Prints JSON: cells, nodes, dofs per yarn, "
-        "minimum angle, footprint area per yarn (mesh vs model), thickness integral vs yarn volume, "
-        "contact pairs, time. With --out, writes DIR/mesh.xdmf (+.h5, cell tags = covering set), "
-        "DIR/mesh.json and DIR/mesh.png. Runs under mpirun.")
+        "size = seed) and sample each yarn's mid-surface, as `solve` does: a yarn's steep stretches (a "
+        "binder's legs) are cut out first and its crowns meshed as plates of their own. Prints JSON: cells, "
+        "nodes, dofs per yarn (per crown), minimum angle, footprint area per yarn (mesh vs model), "
+        "thickness integral vs yarn volume, contact pairs, the yarns whose legs were cut, time. With "
+        "--out, writes DIR/mesh.xdmf (+.h5, cell tags = covering set), DIR/mesh.json and DIR/mesh.png. "
+        "Runs under mpirun.")
     p.add_argument("model", help="model file: .tg3, .toml or .json")
     p.add_argument("--out", metavar="DIR", help="write mesh.xdmf, mesh.json and mesh.png there")
     p.add_argument("--force", action="store_true",

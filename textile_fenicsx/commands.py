@@ -115,6 +115,7 @@ def mesh(args) -> int:
 
     import dolfinx.io
     from textile_fenicsx.config import load_model
+    from textile_fenicsx.legs import plate_model
     from textile_fenicsx.meshes.midsurface import mesh_statistics, mid_surfaces
     from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
     from textile_fenicsx.plotting import plot_projected_mesh
@@ -127,9 +128,11 @@ def mesh(args) -> int:
     claim = claim_output(args.out, inputs=[args.model], names=written, force=args.force, comm=comm)
     with claim if args.out else nullcontext():
         start = time.perf_counter()
-        projected = projected_mesh(textile, options, comm)
+        split = plate_model(textile, options.seed)  # the plates the solve meshes: legs cut out
+        projected = projected_mesh(split.plate, options, comm)
         ms = mid_surfaces(projected)
         stats = mesh_statistics(ms)
+        stats["legs_cut"] = sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})
         stats["time_s"] = time.perf_counter() - start
         if args.out:
             with staged_folder(args.out, comm, remove=written) as tmp:

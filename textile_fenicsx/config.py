@@ -22,8 +22,10 @@ or a generic yarn list (what `save_model` writes, JSON):
     # instead of section: node_sections = [{...}, ...] (one per node) or
     # position_sections = {positions = [...], sections = [{...}, ...]}
 
-Section tables: type = ellipse | lenticular | power_ellipse | polygon, with width, height and
-(lenticular) distortion, (power_ellipse) power and x_offset, (polygon) points = [[s, u], ...].
+Section tables: type = ellipse | lenticular | power_ellipse | polygon | hybrid, with width, height
+and (lenticular) distortion, (power_ellipse) power and x_offset, (polygon) points = [[s, u], ...],
+(hybrid: TexGen's CSectionHybrid, sections.Hybrid) divisions = [t, ...] and pieces = [{...}, ...],
+one per division, where a piece may also be {type = "flat", width = w} (no height).
 A top-level `name` and `[resolution]` (spacing, section_points, per_segment) are optional. Fibre data,
 `fibres = {count = 12000, diameter = 0.007}` (also area [mm^2], density [g/cm^3], linear_density
 [tex]: fibres.Fibres), may be given per yarn, or once at the top level for every yarn without its own. Unknown keys are
@@ -40,13 +42,22 @@ import numpy as np
 from textile_fenicsx import fibres as fibre_data
 from textile_fenicsx.errors import FormatError, TextileError
 from textile_fenicsx.files import atomic_path
-from textile_fenicsx.limits import MAX_NODES_PER_YARN, MAX_YARNS, check_file_size, check_many
-from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
+from textile_fenicsx.limits import MAX_NODES_PER_YARN, MAX_POLYGON_POINTS, MAX_YARNS, check_file_size, check_many
+from textile_fenicsx.sections import (
+    MAX_HYBRID_DEPTH,
+    Ellipse,
+    Flat,
+    Hybrid,
+    Lenticular,
+    Polygon,
+    PowerEllipse,
+    Section,
+)
 from textile_fenicsx.textile import Cell, Resolution, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
 
-SECTION_TYPES = {"ellipse": Ellipse, "lenticular": Lenticular, "power_ellipse": PowerEllipse,
-                 "polygon": Polygon}
+SECTION_TYPES: dict[str, type] = {"ellipse": Ellipse, "lenticular": Lenticular, "power_ellipse": PowerEllipse,
+                                  "polygon": Polygon, "hybrid": Hybrid}
 
 
 def _keys(table, where: str, allowed: set, required: set | frozenset = frozenset()):
@@ -70,13 +81,19 @@ def _array(value, where: str, shape_tail: tuple) -> np.ndarray:
     return a
 
 
-def section_from_dict(d, where: str) -> Section:
-    _keys(d, where, {"type", "width", "height", "power", "x_offset", "distortion", "points"}, {"type"})
+def section_from_dict(d, where: str, depth: int = 0) -> Section:
+    """A section table as a Section; depth > 0: a piece of a hybrid section (that deep), which may
+    be flat."""
+    _keys(d, where, {"type", "width", "height", "power", "x_offset", "distortion", "points", "divisions", "pieces"},
+          {"type"})
     kind = d["type"]
-    if not isinstance(kind, str) or kind not in SECTION_TYPES:
-        raise FormatError(f"{where}: section type {kind!r} unknown; choose from {sorted(SECTION_TYPES)}")
+    known = SECTION_TYPES | ({"flat": Flat} if depth else {})
+    if not isinstance(kind, str) or kind not in known:
+        hint = " (flat: only as a piece of a hybrid section)" if kind == "flat" else ""
+        raise FormatError(f"{where}: section type {kind!r} unknown; choose from {sorted(known)}{hint}")
     fields = {"ellipse": ("width", "height"), "lenticular": ("width", "height", "distortion"),
-              "power_ellipse": ("width", "height", "power", "x_offset"), "polygon": ("points",)}[kind]
+              "power_ellipse": ("width", "height", "power", "x_offset"), "polygon": ("points",),
+              "hybrid": ("divisions", "pieces"), "flat": ("width",)}[kind]
     extra = set(d) - {"type"} - set(fields)
     if extra:
         raise FormatError(f"{where}: key(s) {sorted(extra)} do not apply to a {kind} section")
@@ -85,7 +102,9 @@ def section_from_dict(d, where: str) -> Section:
             if "points" not in d:
                 raise FormatError(f"{where}: polygon section needs points")
             return Polygon(tuple(map(tuple, _array(d["points"], f"{where}.points", (2,)))))
-        return SECTION_TYPES[kind](**{k: d[k] for k in fields if k in d})
+        if kind == "hybrid":
+            return _hybrid_from_dict(d, where, depth)
+        return known[kind](**{k: d[k] for k in fields if k in d})
     except TypeError as e:
         raise FormatError(f"{where}: {e}") from None
     except FormatError:
@@ -94,9 +113,25 @@ def section_from_dict(d, where: str) -> Section:
         raise FormatError(f"{where}: {e}") from None
 
 
+def _hybrid_from_dict(d: dict, where: str, depth: int) -> Hybrid:
+    """A hybrid section: divisions [t, ...] and pieces [section table, ...], one per division."""
+    if depth >= MAX_HYBRID_DEPTH:
+        raise FormatError(f"{where}: hybrid sections nested more than {MAX_HYBRID_DEPTH} deep")
+    if "divisions" not in d or "pieces" not in d or not isinstance(d["pieces"], list):
+        raise FormatError(f"{where}: a hybrid section needs divisions and a list of pieces")
+    check_many(f"{where}.pieces", len(d["pieces"]), MAX_POLYGON_POINTS, FormatError)
+    divisions = tuple(_array(d["divisions"], f"{where}.divisions", ()))
+    pieces = tuple(section_from_dict(x, f"{where}.pieces[{k}]", depth + 1) for k, x in enumerate(d["pieces"]))
+    return Hybrid(divisions, pieces)
+
+
 def section_to_dict(s: Section) -> dict:
     if isinstance(s, Polygon):
         return {"type": "polygon", "points": [list(p) for p in s.vertices]}
+    if isinstance(s, Hybrid):
+        return {"type": "hybrid", "divisions": list(s.divisions), "pieces": [section_to_dict(x) for x in s.pieces]}
+    if isinstance(s, Flat):
+        return {"type": "flat", "width": float(s.width)}
     kind = {Ellipse: "ellipse", Lenticular: "lenticular", PowerEllipse: "power_ellipse"}[type(s)]
     keys = {"ellipse": ("width", "height"), "lenticular": ("width", "height", "distortion"),
             "power_ellipse": ("width", "height", "power", "x_offset")}[kind]

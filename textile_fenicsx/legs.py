@@ -3,16 +3,18 @@
 A projected plate describes a yarn by its mid-height over the plane; where the yarn runs (nearly)
 vertically, as TexGen's orthogonal and interlock binders do between weft columns, its plan is a
 strip as narrow as the yarn is thick and its "plate" is a column. So before meshing, every yarn is
-cut where its centreline is steeper than STEEP: the stretches between cuts that are not steep are
-the crowns, each a plate of its own (a non-periodic yarn of the plate model with the original's
-stations, sections and up vectors, repeated by the cell like the original); the steep stretches
-are the legs, left out of the plates. A leg carries the yarn's tension (sigma1 per unit width)
+cut where its centreline is steeper than STEEP, or turns back against its own direction in plan
+(a loop: two heights over one place): the stretches between cuts that are neither are the crowns,
+each a plate of its own (a non-periodic yarn of the plate model with the original's stations,
+sections and up vectors, repeated by the cell like the original); the steep stretches are the
+legs, left out of the plates. A leg carries the yarn's tension (sigma1 per unit width)
 from one crown's end to the next one's start: on each crown end it is a vertical force, down where
 the leg goes down, spread over the crown within one seed of the end. After the solve the yarn is
 put together again (correct.py): crowns move with their plates, each leg's stations move by the
 displacements of its two crown ends, interpolated along the leg, and keep their sections.
 """
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +23,9 @@ from textile_fenicsx.sections import Polygon
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn import NodeSections, Yarn
 
-__all__ = ["STEEP", "Crown", "Split", "split_steep"]
+__all__ = ["STEEP", "Crown", "Split", "plate_model", "split_steep"]
+
+log = logging.getLogger(__name__)
 
 # slope |dz| / |dxy| above which a stretch of a yarn is a leg (72 degrees)
 STEEP = 3.0
@@ -67,13 +71,27 @@ def _path(yarn: Yarn, s: np.ndarray):
     return pos + wraps[:, None] * yarn.period, tan, up, side
 
 
+def leg_stations(yarn: Yarn, tan: np.ndarray) -> np.ndarray:
+    """Where a yarn with unit tangents `tan` (M, 3) at stations is no plate: steeper than STEEP, or
+    running back against its own direction in plan (the yarn's period, or first to last node). A
+    plate is a height over the plane, and a yarn that turns back over itself has two there: TexGen's
+    layer-to-layer weave with a binder thicker than the gap between weft columns puts a binder node
+    past the next one (x 11.027, 11.24, 11.16 mm), a loop at the leg."""
+    steep = np.abs(tan[:, 2]) > STEEP * np.linalg.norm(tan[:, :2], axis=1)
+    ahead = (yarn.period if yarn.periodic else yarn.nodes[-1] - yarn.nodes[0])[:2]
+    if np.linalg.norm(ahead) > 0:
+        steep |= tan[:, :2] @ ahead < 0
+    return steep
+
+
 def steep_runs(yarn: Yarn, spacing: float) -> list[tuple[float, float]]:
-    """The yarn's crowns as parameter intervals [(s0, s1), ...], or [] when nothing is steep."""
+    """The yarn's crowns as parameter intervals [(s0, s1), ...], or [] when no station is a leg's
+    (`leg_stations`)."""
     s = yarn.stations(spacing)
     if yarn.periodic:
         s = s[:-1]
     _, tan = yarn.centreline(s)
-    steep = np.abs(tan[:, 2]) > STEEP * np.linalg.norm(tan[:, :2], axis=1)
+    steep = leg_stations(yarn, tan)
     if not np.any(steep) or np.all(steep):
         return []
     n = yarn.n_segments
@@ -121,6 +139,16 @@ def split_steep(textile: Textile, spacing: float) -> Split:
     plate = Textile(textile.cell, yarns, name=f"{textile.name}_plates" if cut else textile.name,
                     resolution=textile.resolution, tiling=None if cut else textile.tiling)
     return Split(textile, plate, tuple(crowns))
+
+
+def plate_model(textile: Textile, seed: float) -> Split:
+    """The plates every command meshes (mesh, solve, the bench): the textile with its legs cut out
+    (split_steep, stations seed / 2 apart), the yarns so cut named in the log."""
+    split = split_steep(textile, seed / 2)
+    if split.any:
+        log.info("legs: %s cut into crowns where steeper than %g or turning back", ", ".join(
+            sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})), STEEP)
+    return split
 
 
 def _clear_of_sides(textile: Textile, yarn: Yarn, s0: float, s1: float, margin: float) -> tuple[float, float]:

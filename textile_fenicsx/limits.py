@@ -19,7 +19,7 @@ MAX_SIZE = 1_000.0         # a spacing, a fabric thickness, a mesh seed, a resol
 MAX_CELL = 10_000.0        # a cell side (a coupon of 100 x 100 cells of 100 mm)
 MAX_COORDINATE = 100_000.0  # |x|, |y|, |z| of a master node, a cell origin, a repeat vector
 # Other numbers
-MIN_POWER, MAX_POWER = 0.01, 100.0  # a power-ellipse's power
+MIN_POWER, MAX_POWER = 0.0, 100.0  # a power-ellipse's power (0: TexGen's rectangle, which its refine writes)
 # Counts
 MAX_YARNS = 1_000                  # yarns in a model
 MAX_NODES_PER_YARN = 2_000         # master nodes of one yarn (TexGen's have 3-50; corrected ones one per station)

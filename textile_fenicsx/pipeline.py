@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from textile_fenicsx.correct import CorrectionOptions, corrected_textile
 from textile_fenicsx.errors import TextileError
-from textile_fenicsx.legs import STEEP, leg_loads, split_steep
+from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.memory import release_freed_memory
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
@@ -155,10 +155,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     begin = on_stage or (lambda name: None)
     begin("mesh")
     start = t = time.perf_counter()
-    split = split_steep(textile, settings.mesh.seed / 2)  # binder legs are not plates (legs.py)
-    if split.any:
-        log.info("legs: %s cut into crowns where steeper than %g", ", ".join(
-            sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})), STEEP)
+    split = plate_model(textile, settings.mesh.seed)  # binder legs are not plates (legs.py)
     projected = projected_mesh(split.plate, settings.mesh, comm, settings.solver.bytes_per_dof)
     times["mesh"] = time.perf_counter() - t
     begin("midsurfaces")

@@ -121,6 +121,8 @@ def lattice(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int], n
     for d in range(2):
         u = np.unique(pts[:, d])
         h = float(np.min(np.diff(u))) if len(u) > 1 else 1.0
+        if h <= 1e-12 * max(1.0, abs(u[0]), abs(u[-1])):  # two coordinates all but equal: no lattice
+            return None
         k = np.rint((pts[:, d] - u[0]) / h).astype(np.int64)
         if np.max(np.abs(u[0] + k * h - pts[:, d])) > 1e-9 * max(h, abs(u[0]), abs(u[-1])):
             return None

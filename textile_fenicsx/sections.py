@@ -3,7 +3,9 @@
 A section is a closed curve in the section plane, in coordinates (s, u): u along the yarn's up
 vector, s along side = tangent x up (for a yarn along +x with up +z, s points to -y). Every section
 is sampled anticlockwise in (s, u) starting at its +s extreme (TexGen's t = 0), so sections of one
-yarn can be blended point by point.
+yarn can be blended point by point. `Hybrid` is TexGen's CSectionHybrid: pieces of other sections,
+each over a range of t between its divisions (TexGen's refine of an orthogonal weave gives its outer
+wefts a power-ellipse half and a `Flat` half).
 """
 
 from dataclasses import dataclass, field
@@ -53,10 +55,12 @@ class Ellipse(Section):
 
 @dataclass(frozen=True)
 class PowerEllipse(Section):
-    """TexGen's power ellipse [mm]: s = w/2 cos(2 pi t), u = h/2 sign(sin) |sin(2 pi t)|^power.
+    """TexGen's power ellipse [mm]: s = w/2 cos(2 pi t), u = h/2 sin(2 pi t)^power for t <= 1/2 and
+    -h/2 (-sin(2 pi t))^power after (TexGen's CSectionPowerEllipse::GetPoint, 0^0 = 1 as in C).
 
-    power < 1 squares the section off (towards a rectangle), power > 1 sharpens it; x_offset moves
-    the top and bottom extremes sideways (TexGen's XOffset, mm).
+    power < 1 squares the section off (towards a rectangle), power > 1 sharpens it; power 0 is the
+    w x h rectangle itself (TexGen's refine of an orthogonal weave writes it), its first point the
+    top right corner; x_offset moves the top and bottom extremes sideways (TexGen's XOffset, mm).
     """
 
     width: float
@@ -78,8 +82,9 @@ class PowerEllipse(Section):
         half_w = np.where(right, 0.5 * self.width - self.x_offset, 0.5 * self.width + self.x_offset)
         s = half_w * np.cos(a) + self.x_offset
         sin = np.sin(a)
-        u = 0.5 * self.height * np.sign(sin) * np.abs(sin) ** self.power
-        return np.column_stack((s, u))
+        upper = t <= 0.5
+        u = 0.5 * self.height * np.where(upper, np.maximum(sin, 0.0), np.maximum(-sin, 0.0)) ** self.power
+        return np.column_stack((s, np.where(upper, u, -u)))
 
     def area(self):
         # 4 * (w/2)(h/2) * int_0^{pi/2} sin^(p+1): the x_offset shears halves without changing area.
@@ -181,6 +186,113 @@ class Polygon(Section):
 
     def area(self):
         return float(_signed_area(np.asarray(self.vertices)))
+
+
+@dataclass(frozen=True)
+class Flat(Section):
+    """A section of no height [mm]: s = w/2 cos(2 pi t), u = 0, i.e. the segment between (+-w/2, 0)
+    run twice. TexGen writes it as an ellipse of height 0: the flat half of a weft that its refine
+    of an orthogonal weave halves (a `Hybrid` piece). It encloses nothing, so it is only ever a
+    piece of a hybrid section (the readers refuse it as a yarn's own section)."""
+
+    width: float
+
+    def __post_init__(self):
+        check_length("flat section width", self.width, MAX_SECTION)
+
+    @property
+    def height(self) -> float:  # type: ignore[override]  # no height: not a field
+        return 0.0
+
+    def curve(self, t):
+        a = 2 * pi * np.asarray(t, float)
+        return np.column_stack((0.5 * self.width * np.cos(a), np.zeros_like(a)))
+
+    def area(self):
+        return 0.0
+
+
+# Points per piece that a hybrid section's extents and area are measured with: the area of a
+# power-ellipse half (power 0.6) comes within 2e-6 of its exact value.
+HYBRID_SAMPLES = 4096
+# Hybrids inside hybrids: TexGen allows any depth; more than this is taken for a broken file.
+MAX_HYBRID_DEPTH = 4
+
+
+@dataclass(frozen=True)
+class Hybrid(Section):
+    """TexGen's CSectionHybrid [mm]: a section made of pieces of others.
+
+    divisions: fractions of TexGen's parameter t, increasing, in [0, 1]; pieces: one section per
+    division. Piece k gives the points with divisions[k] < t <= divisions[k + 1], the last one those
+    after the last division and up to the first (round t = 0), each the point of the piece's own
+    curve at that same t (TexGen's CSectionHybrid::GetPoint). E.g. divisions (0, 0.5) with pieces
+    (Flat(w), PowerEllipse(w, h, p)): a flat top over a power-ellipse bottom, as TexGen's refine
+    writes the bottom wefts of an orthogonal weave. Where neighbouring pieces do not meet, the
+    section's polygon joins them with a straight edge.
+    """
+
+    divisions: tuple = ()
+    pieces: tuple = ()
+
+    def __post_init__(self):
+        d = np.asarray(self.divisions, float)
+        if d.ndim != 1 or len(d) == 0 or len(d) != len(self.pieces):
+            raise TextileError(f"hybrid section needs one piece per division, at least one; got {len(d)} "
+                               f"divisions and {len(self.pieces)} pieces")
+        if len(d) > MAX_POLYGON_POINTS:
+            raise TextileError(f"hybrid section has {len(d)} divisions, more than the limit of {MAX_POLYGON_POINTS}")
+        if not np.all(np.isfinite(d)) or np.any(d < 0) or np.any(d > 1) or np.any(np.diff(d) < 0):
+            raise TextileError(f"hybrid section divisions must increase from 0 to 1, got {self.divisions}")
+        if not all(isinstance(p, Section) for p in self.pieces):
+            raise TextileError("hybrid section pieces must be sections")
+        if _depth(self) > MAX_HYBRID_DEPTH:
+            raise TextileError(f"hybrid sections nested more than {MAX_HYBRID_DEPTH} deep")
+        object.__setattr__(self, "divisions", tuple(float(x) for x in d))
+        object.__setattr__(self, "pieces", tuple(self.pieces))
+        if _signed_area(self._dense()) <= 0:
+            raise TextileError(f"hybrid section (divisions {self.divisions}, pieces "
+                               f"{', '.join(type(p).__name__ for p in self.pieces)}) must run anticlockwise "
+                               "in (s, u) and enclose an area")
+
+    def piece_of(self, t: np.ndarray) -> np.ndarray:
+        """Index of the piece that gives the point at each t."""
+        k = np.searchsorted(np.asarray(self.divisions), np.asarray(t, float), side="left") - 1
+        return np.where(k < 0, len(self.divisions) - 1, k)
+
+    def curve(self, t):
+        t = np.asarray(t, float)
+        k = self.piece_of(t)
+        out = np.empty((len(t), 2))
+        for j, piece in enumerate(self.pieces):
+            mask = k == j
+            if np.any(mask):
+                out[mask] = piece.curve(t[mask])
+        return out
+
+    def _dense(self) -> np.ndarray:
+        """The curve at HYBRID_SAMPLES points per piece and at every division (both pieces' ends)."""
+        t = np.concatenate((np.arange(HYBRID_SAMPLES * len(self.pieces)) / (HYBRID_SAMPLES * len(self.pieces)),
+                            self.divisions, np.nextafter(np.asarray(self.divisions), 2.0)))
+        return self.curve(np.unique(t[t < 1.0]))
+
+    @property
+    def width(self) -> float:  # type: ignore[override]  # derived from the pieces, not a field
+        return float(np.ptp(self._dense()[:, 0]))
+
+    @property
+    def height(self) -> float:  # type: ignore[override]  # derived from the pieces, not a field
+        return float(np.ptp(self._dense()[:, 1]))
+
+    def area(self):
+        return float(_signed_area(self._dense()))
+
+
+def _depth(section: Section) -> int:
+    """How deep hybrid sections nest in this one (0 for any other section)."""
+    if not isinstance(section, Hybrid):
+        return 0
+    return 1 + max((_depth(p) for p in section.pieces), default=0)
 
 
 def _signed_area(v: np.ndarray) -> float:

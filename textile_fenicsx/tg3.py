@@ -29,7 +29,16 @@ from textile_fenicsx.limits import (
     check_file_size,
     check_many,
 )
-from textile_fenicsx.sections import Ellipse, Lenticular, Polygon, PowerEllipse, Section
+from textile_fenicsx.sections import (
+    MAX_HYBRID_DEPTH,
+    Ellipse,
+    Flat,
+    Hybrid,
+    Lenticular,
+    Polygon,
+    PowerEllipse,
+    Section,
+)
 from textile_fenicsx.textile import Cell, Textile
 from textile_fenicsx.yarn import ConstantSection, NodeSections, PositionSections, Yarn
 
@@ -73,13 +82,25 @@ def _attr(el, name: str, where: str, default=None, kind=float):
         raise FormatError(f"{where}: attribute {name}={text!r} is not a {kind.__name__}") from None
 
 
-def _section(el, where: str) -> Section:
+def _section(el, where: str, depth: int = 0) -> Section:
+    """A <Section> element as a Section. depth > 0: a piece of a hybrid section (that deep), which
+    may be flat (an ellipse or power ellipse of height 0: TexGen's refine writes a weft's flat half
+    so)."""
     kind = el.get("type")
     where = f"{where} {kind}"
+    allowed = IGNORED_YARN_CHILDREN | {"PolygonPoint"}
+    if kind == "CSectionHybrid":
+        allowed = allowed | {"Division", "Section"}
+        if depth >= MAX_HYBRID_DEPTH:
+            raise FormatError(f"{where}: hybrid sections nested more than {MAX_HYBRID_DEPTH} deep")
     for child in el:
-        if child.tag not in IGNORED_YARN_CHILDREN and child.tag != "PolygonPoint":
+        if child.tag not in allowed:
             raise FormatError(f"{where}: unsupported element <{child.tag}>")
     try:
+        if kind in ("CSectionEllipse", "CSectionPowerEllipse") and depth and _attr(el, "Height", where) == 0:
+            if _attr(el, "XOffset", where, 0.0) != 0:
+                raise FormatError(f"{where}: a flat piece (Height 0) with an XOffset is not supported")
+            return Flat(_attr(el, "Width", where))
         if kind == "CSectionEllipse":
             return Ellipse(_attr(el, "Width", where), _attr(el, "Height", where))
         if kind == "CSectionPowerEllipse":
@@ -96,9 +117,27 @@ def _section(el, where: str) -> Section:
                        FormatError)
             pts = [_floats(p.get("value"), f"{where} PolygonPoint", 2) for p in el.findall("PolygonPoint")]
             return Polygon(tuple(map(tuple, pts)))
+        if kind == "CSectionHybrid":
+            return _hybrid(el, where, depth)
+    except FormatError:
+        raise
     except TextileError as e:
         raise FormatError(f"{where}: {e}") from None
     raise FormatError(f"{where}: unsupported section type {kind!r}")
+
+
+def _hybrid(el, where: str, depth: int) -> Hybrid:
+    """TexGen's CSectionHybrid: <Division Value=...> elements and one <Section> per division. TexGen
+    sorts the divisions as it reads them and gives the sections to them in the file's order (its
+    CSectionHybrid(TiXmlElement&)): the first section to the smallest division, and so on."""
+    divisions = el.findall("Division")
+    pieces = el.findall("Section")
+    check_many(f"{where}: Division elements", len(divisions), MAX_POLYGON_POINTS, FormatError)
+    if len(pieces) != len(divisions) or not divisions:
+        raise FormatError(f"{where}: needs one <Section> per <Division>, at least one; has {len(divisions)} "
+                          f"divisions and {len(pieces)} sections")
+    values = sorted(_attr(d, "Value", f"{where} Division") for d in divisions)
+    return Hybrid(tuple(values), tuple(_section(p, f"{where} piece {k}", depth + 1) for k, p in enumerate(pieces)))
 
 
 def _yarn_section(el, n_nodes: int, where: str):
@@ -128,8 +167,8 @@ def _yarn_section(el, n_nodes: int, where: str):
                 mid.append((k, float(t), _section(inner, f"{where} node {k} mid")))
         if sorted(found) != list(range(n_nodes)):
             raise FormatError(f"{where}: needs one NodeSection per master node 0..{n_nodes - 1}, has {sorted(found)}")
-        if len({k for k, _, _ in mid}) != len(mid):
-            raise FormatError(f"{where}: more than one MidNodeSection in a segment is not supported")
+        if len({(k, t) for k, t, _ in mid}) != len(mid):
+            raise FormatError(f"{where}: two MidNodeSections at the same place of a segment")
         return NodeSections(tuple(found[k] for k in range(n_nodes)), ramped, polar, tuple(mid))
     if kind == "CYarnSectionInterpPosition":
         items = []
@@ -270,9 +309,11 @@ def read_tg3(path, textile: str | None = None) -> Textile:
             raise FormatError(f"{where}: <Yarn index={y.get('index')!r}> is not a whole number") from None
 
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
-    default = fibre_data.from_tg3(el, where)  # the textile's fibre data: for yarns without their own
+    # the textile's fibre data: for yarns without their own fibre area (TexGen's CYarn takes the
+    # textile's fibre area where its own data gives none, e.g. a fibre count without a diameter)
+    default = fibre_data.from_tg3(el, where)
     for y in yarns:
-        if y.fibres is None:
+        if y.fibres is None or (default is not None and y.fibres.fibre_area() is None):
             y.fibres = default
     cell = _domain(el, yarns, where)
     try:
@@ -321,6 +362,14 @@ def _section_element(parent, sec: Section, n_points: int):
         el.attrib.update(type="CSectionPolygon", RetainPoints="0")
         for p in sec.vertices:
             ET.SubElement(el, "PolygonPoint", value=_num(p))
+    elif isinstance(sec, Flat):  # TexGen's flat half of a hybrid: an ellipse of height 0
+        el.attrib.update(type="CSectionEllipse", Width=_num(sec.width), Height=_num(0.0))
+    elif isinstance(sec, Hybrid):
+        el.attrib.update(type="CSectionHybrid")
+        for d in sec.divisions:
+            ET.SubElement(el, "Division", Value=_num(d))
+        for p in sec.pieces:
+            _section_element(el, p, n_points)
     else:
         raise TextileError(f"cannot write section of type {type(sec).__name__}")
     return el
@@ -358,13 +407,13 @@ def tg3_tree(textile: Textile) -> ET.ElementTree:
         elif isinstance(sec, NodeSections):
             ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpNode",
                                Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))
-            mids = {k: (t, x) for k, t, x in sec.mid}
             for k, s in enumerate(sec.at_nodes):
                 node = ET.SubElement(ys, "NodeSection", nodeindex=str(k))
                 _section_element(node, s, n_sec)
-                if k in mids:
-                    t, x = mids[k]
-                    _section_element(ET.SubElement(node, "MidNodeSection", nodeindex=str(k), t=_num(t)), x, n_sec)
+                for segment, t, x in sec.mid:
+                    if segment == k:
+                        _section_element(ET.SubElement(node, "MidNodeSection", nodeindex=str(k), t=_num(t)), x,
+                                         n_sec)
         else:
             ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpPosition",
                                Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))

@@ -71,11 +71,11 @@ class Yarn:
             raise TextileError(f"{label}: {len(self.section.at_nodes)} node sections for {len(self.nodes)} "
                                "master nodes")
         if isinstance(self.section, NodeSections):
-            segments = [m[0] for m in self.section.mid]
-            if any(not (0 <= k < len(self.nodes) - 1 and 0 < t < 1) for k, t, _ in self.section.mid) \
-                    or len(set(segments)) != len(segments):
+            places = [(k, t) for k, t, _ in self.section.mid]
+            if any(not (0 <= k < len(self.nodes) - 1 and 0 < t < 1) for k, t in places) \
+                    or len(set(places)) != len(places):
                 raise TextileError(f"{label}: a mid-segment section needs a segment 0..{len(self.nodes) - 2} "
-                                   "(one each) and 0 < t < 1")
+                                   "and 0 < t < 1 (one section at each)")
         self.repeats = np.array(self.repeats, dtype=float).reshape(-1, 3)
         if not np.all(np.isfinite(self.repeats)):
             raise TextileError(f"{label}: a repeat vector is not finite")

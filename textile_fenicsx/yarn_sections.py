@@ -33,12 +33,17 @@ class ConstantSection:
 class NodeSections:
     """One section per master node, blended point by point between nodes (TexGen InterpNode).
     mid: sections inside segments, ((segment k, t in (0, 1), section), ...), as TexGen's refine
-    writes them (MidNodeSection): within segment k the blend runs node k -> mid at t -> node k + 1."""
+    writes them (MidNodeSection; one or more per segment): within segment k the blend runs from node
+    k through its mid-sections in order of t to node k + 1 (TexGen's GetSectionsToInterp)."""
 
     at_nodes: tuple
     ramped: bool = False
     polar: bool = False
     mid: tuple = ()
+
+    def __post_init__(self) -> None:
+        order = sorted(range(len(self.mid)), key=lambda m: (self.mid[m][0], self.mid[m][1]))
+        object.__setattr__(self, "mid", tuple(self.mid[m] for m in order))
 
     def sections(self) -> tuple[Section, ...]:
         return tuple(self.at_nodes) + tuple(m[2] for m in self.mid)
@@ -47,15 +52,16 @@ class NodeSections:
         """Section polygons (M, n_points, 2) at local parameters t in segments i."""
         pts = np.array([x.points(n_points) for x in self.sections()])
         out = blend(pts[i], pts[i + 1], t, self.ramped, self.polar)
-        for m, (k, tm, _) in enumerate(self.mid):  # node k -> mid -> node k + 1 within segment k
-            mid = pts[len(self.at_nodes) + m]
-            first = (i == k) & (t <= tm)
-            second = (i == k) & (t > tm)
-            if np.any(first):
-                out[first] = blend(pts[k][None], mid[None], t[first] / tm, self.ramped, self.polar)
-            if np.any(second):
-                out[second] = blend(mid[None], pts[k + 1][None], (t[second] - tm) / (1 - tm), self.ramped,
-                                    self.polar)
+        first = len(self.at_nodes)
+        for k in sorted({m[0] for m in self.mid}):  # node k -> its mids in order -> node k + 1
+            mids = [m for m in range(len(self.mid)) if self.mid[m][0] == k]
+            stops = np.array([0.0] + [self.mid[m][1] for m in mids] + [1.0])
+            shapes = [pts[k]] + [pts[first + m] for m in mids] + [pts[k + 1]]
+            for j in range(len(stops) - 1):
+                here = (i == k) & (t > stops[j]) & (t <= stops[j + 1]) if j else (i == k) & (t <= stops[1])
+                if np.any(here):
+                    u = (t[here] - stops[j]) / (stops[j + 1] - stops[j])
+                    out[here] = blend(shapes[j][None], shapes[j + 1][None], u, self.ramped, self.polar)
         return out
 
 
