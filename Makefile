@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer bench-volume sweep clean
+.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer bench-volume sweep sweep-volume clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -21,6 +21,8 @@ help:
 	@echo "make bench-volume volume-mesh + homogenise of the corrected satin4 (voxel and tet, 1 and 2 ranks): seconds,"
 	@echo "                  dofs, peak memory; table + $(OUT)/volume_bench.json"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
+	@echo "make sweep-volume the volume stage on the same family: voxel of each input, solve --volume-mesh tet,"
+	@echo "                  voxel of the corrected model, homogenise (~3 h); table + $(OUT)/volume_sweep.json"
 	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
 	@echo "                  2 ranks) in the image as a non-root user and compare them with bin/fenicsx-env's, run"
 	@echo "                  the tests in the image; as root; about 10 min (13 cold); $(OUT)/docker-test/"
@@ -64,6 +66,9 @@ bench-volume:
 
 sweep:
 	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json
+
+sweep-volume:
+	$(ENV) python3 bench/volume_sweep.py --out $(OUT)/volume_sweep.json
 
 clean:
 	rm -rf $(OUT)

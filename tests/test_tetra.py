@@ -127,16 +127,18 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
 
 @pytest.mark.sweep
 @pytest.mark.serial
-def test_tet_family(tmp_path):
-    """Every fabric of the sweep whose solve (with the tet policy's least gap) passes its check is
-    tet-meshed: periodic, no inverted tet, yarn volumes within 1 % (bench/tet_sweep.py; hours)."""
+def test_volume_stage_family():
+    """Every fabric of the sweep whose solve (with the tet mesher's gap) passes its check is tet-meshed
+    and voxel-meshed, and its voxel mesh homogenised (bench/volume_sweep.py, each command in a fresh
+    process; hours). The idealised inputs are voxel-meshed whether or not they solve."""
     import importlib.util
 
     from conftest import REPO
 
-    spec = importlib.util.spec_from_file_location("tet_sweep", REPO / "bench" / "tet_sweep.py")
+    spec = importlib.util.spec_from_file_location("volume_sweep", REPO / "bench" / "volume_sweep.py")
     sweep = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(sweep)
-    records = [sweep.run_case(name, 0.25) for name in sweep.cases()]
-    failed = [r["case"] for r in records if r.get("solve") == 0 and not r.get("passed")]
+    records = [sweep.run_case(name, 0.25, 0.35) for name in sweep.sweep.cases()]
+    failed = [r["case"] for r in records if r.get("ideal_voxel", {}).get("exit") != 0 or (
+        r.get("solve", {}).get("passed") and any(r.get(k, {}).get("exit") != 0 for k in ("tet", "voxel", "homogenise")))]
     assert not failed, sweep.table(records)
