@@ -139,6 +139,7 @@ def test_volume_stage_family():
     sweep = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(sweep)
     records = [sweep.run_case(name, 0.25, 0.35) for name in sweep.sweep.cases()]
+    stages = ("tet", "voxel", "homogenise")
     failed = [r["case"] for r in records if r.get("ideal_voxel", {}).get("exit") != 0 or (
-        r.get("solve", {}).get("passed") and any(r.get(k, {}).get("exit") != 0 for k in ("tet", "voxel", "homogenise")))]
+        r.get("solve", {}).get("passed") and any(r.get(k, {}).get("exit") != 0 for k in stages))]
     assert not failed, sweep.table(records)
