@@ -120,7 +120,7 @@ def table(records: list[dict]) -> str:
         return f"{r[key]}" if r["exit"] == 0 else f"exit {r['exit']}: {r['error'][:60]}"
 
     lines = ["| case | voxel, idealised (overlap voxels) | solve | tet (quality min, volume error) | "
-             "voxel, corrected | homogenised Ex MPa (Vf) |", "|---|---|---|---|---|---|"]
+             "voxel, corrected (volume error) | homogenised Ex MPa (Vf) |", "|---|---|---|---|---|---|"]
     for r in records:
         iv, tet, vox, h = r.get("ideal_voxel"), r.get("tet"), r.get("voxel"), r.get("homogenise")
         ideal = cell(iv) + (f" ({iv['overlap_voxels']})" if iv and iv["exit"] == 0 else "")
@@ -128,7 +128,8 @@ def table(records: list[dict]) -> str:
         tets = cell(tet) + (f" ({tet['quality_min']:.3f}, {100 * tet['worst_volume_error']:.2f} %)"
                             if tet and tet["exit"] == 0 else "")
         homog = f"{h['Ex']:.0f} ({h['vf']:.3f})" if h and h["exit"] == 0 else cell(h)
-        lines.append(f"| {r['case']} | {ideal} | {solve} | {tets} | {cell(vox)} | {homog} |")
+        voxels = cell(vox) + (f" ({100 * vox['worst_volume_error']:.1f} %)" if vox and vox["exit"] == 0 else "")
+        lines.append(f"| {r['case']} | {ideal} | {solve} | {tets} | {voxels} | {homog} |")
     ideal_ok = sum(r.get("ideal_voxel", {}).get("exit") == 0 for r in records)
     solved = [r for r in records if r.get("solve", {}).get("passed")]
     tet_ok = sum(r.get("tet", {}).get("exit") == 0 for r in solved)
