@@ -15,7 +15,8 @@ help:
 	@echo "                  installed once by bin/lint on the host (under a minute), then a few seconds"
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
 	@echo "                  satin coupons (4x4, 8x8), serial and 2 ranks; table + $(OUT)/bench.json (~20 min;"
-	@echo "                  make bench QUICK=1: the unit cells only, ~3 min)"
+	@echo "                  make bench QUICK=1: the unit cells only, ~3 min); then make bench-volume's table"
+	@echo "                  (QUICK=1: voxel, serial, ~4 min more)"
 	@echo "make bench-outer  CG with yarn-block and multigrid preconditioners on the contact steps' matrices (satin4,"
 	@echo "                  seed 0.25): why the steps use a direct solve (~1 min); table on stdout"
 	@echo "make bench-volume volume-mesh + homogenise of the corrected satin4 (voxel and tet, 1 and 2 ranks): seconds,"
@@ -57,6 +58,7 @@ docker-test:
 bench:
 	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
 	$(ENV) env TEXTILE_FENICSX_TEXGEN_PYTHON=$$texgen python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
+	$(ENV) python3 bench/volume_bench.py --out $(OUT)/volume_bench.json $(if $(QUICK),--kinds voxel --ranks 1)
 
 bench-outer:
 	$(ENV) python3 bench/outer_solve.py
