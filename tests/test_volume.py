@@ -2,6 +2,7 @@
 
 import json
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -154,7 +155,26 @@ def test_volume_mesh_command_errors_name_the_culprit(tmp_path):
     assert r.returncode == 2 and "would give" in r.stderr and "voxels, more than the limit" in r.stderr
     r = run("reference/models/plain.tg3", "--kind", "voxel", "--yarn-vf", "0.95", "--out", str(out))
     assert r.returncode == 2 and "--yarn-vf" in r.stderr and "0.9069" in r.stderr
+    # a linear density 10 x too large (TexGen takes the fibre area from linear density / density first):
+    # 10 x the fibre area, far above the densest packing of round fibres
+    dense = tmp_path / "dense.tg3"
+    text = Path("reference/models/satin4_fibres.tg3").read_text()
+    dense.write_text(text.replace('LinearDensityValue="1.200000000000e+03"', 'LinearDensityValue="1.200000000000e+04"'))
+    r = run(str(dense), "--kind", "voxel", "--out", str(out))
+    assert r.returncode == 2 and "yarn 0: its fibre data give" in r.stderr and "densest packing" in r.stderr
+    r = run("reference/models/plain.tg3", "--kind", "tet", "--out", str(out))
+    assert r.returncode == 2 and "overlap at (" in r.stderr and "--kind voxel" in r.stderr
     assert not out.exists()
+
+
+def test_tet_sizes_beyond_the_bounds_are_refused():
+    from textile_fenicsx.meshes.tetra import TetOptions, check_size
+
+    lo, hi = np.zeros(3), np.array([11.2, 11.2, 1.0])
+    with pytest.raises(TextileError, match=r"tet size 0.01 mm would give about 4.64e\+09 tets, more than the limit"):
+        check_size(lo, hi, TetOptions(size=0.01))
+    with pytest.raises(TextileError, match=r"tet size 0.05 mm would give about .* tets and need about .* GB"):
+        check_size(lo, hi, TetOptions(size=0.05, max_elements=10**9, memory_limit=1.0))
 
 
 def test_options_are_checked():
