@@ -233,3 +233,20 @@ def test_homogenise_command_errors_name_the_culprit(tmp_path):
     r = run(str(bare), "--fibre", str(bad), "--out", str(out))
     assert r.returncode == 2 and "fibre.toml" in r.stderr and "nu" in r.stderr
     assert not out.exists()
+
+
+@pytest.mark.serial
+def test_solve_then_tet_mesh_holds_the_gap_it_meshes_for(tmp_path):
+    # `solve --volume-mesh tet --min-gap G`: the contact solve holds G between yarns (no volume lost),
+    # and the tet mesh of the corrected cell is made for that same G, periodic
+    out = tmp_path / "run"
+    r = subprocess.run(["textile-fenicsx", "solve", "reference/models/plain.tg3", "--seed", "1.0", "--no-figures",
+                        "--volume-mesh", "tet", "--volume-size", "0.5", "--min-gap", "0.02", "--out", str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    report = json.loads((out / "mesh_report.json").read_text())
+    assert metrics["solver"]["min_gap"] == 0.02 and report["policy"]["gap_mm"] == 0.02
+    assert report["policy"]["least_gap_in_model_mm"] >= 0.75 * 0.02 and report["policy"]["volume_lost_percent"] == 0
+    assert report["periodicity"]["periodic"] and all(abs(y["relative_error"]) < 0.01 for y in report["yarns"])
+    assert "tet mesh: " in r.stdout and (out / "volume.xdmf").is_file() and (out / "volume.inp").is_file()

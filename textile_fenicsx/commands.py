@@ -187,7 +187,7 @@ def solve(args) -> int:
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     t = time.perf_counter()
     textile = _repeated(load_input(args.input), args, settings.mesh, comm.size, settings.solver.bytes_per_dof)
-    settings = volume_commands.with_gap(settings, textile, volume, args.min_gap)
+    settings, volume = volume_commands.with_gap(settings, textile, volume, args.min_gap)
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
     names = RESULT_NAMES + FAILED_NAMES + (volume_commands.FILES if volume else ())

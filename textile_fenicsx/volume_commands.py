@@ -64,15 +64,17 @@ def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
     return options_from(args, args.volume_mesh, args.volume_size)
 
 
-def with_gap(settings: Settings, textile: Textile, volume: VolumeOptions | None, min_gap: float) -> Settings:
-    """The solve's settings for a tet mesh: unless --min-gap was given, the gap the tet mesher needs
-    (5 % of the thinnest yarn's height), held by the contact solve (no yarn volume is lost)."""
-    if volume is None or volume.kind != "tet" or min_gap > 0:
-        return settings
+def with_gap(settings: Settings, textile: Textile, volume: VolumeOptions | None,
+             min_gap: float) -> tuple[Settings, VolumeOptions | None]:
+    """The solve's settings and the volume options for a tet mesh: the gap the tet mesher needs (5 %
+    of the input's thinnest yarn's height), or --min-gap where given, held by the contact solve (no
+    yarn volume is lost) and the gap the mesh is then made for."""
+    if volume is None or volume.kind != "tet":
+        return settings, volume
     from textile_fenicsx.meshes.tetra import TetOptions, default_gap
 
-    gap = default_gap(textile, TetOptions(gap=volume.gap))
-    return replace(settings, solver=replace(settings.solver, min_gap=gap))
+    gap = min_gap if min_gap > 0 else default_gap(textile, TetOptions(gap=volume.gap))
+    return replace(settings, solver=replace(settings.solver, min_gap=gap)), replace(volume, gap=gap)
 
 
 def mesh_corrected(run: Run, options: VolumeOptions, out: str) -> Any:
