@@ -286,7 +286,8 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     t = time.perf_counter()
     lo, hi = _box(textile, options, gap, shrink)
     estimate = check_size(lo, hi, options)
-    phase_of = solids.build(textile, lo, hi, options.spacing, options.points, shrink)
+    z_pad = None if options.z_range is not None else gap / 2
+    phase_of = solids.build(textile, lo, hi, options.spacing, options.points, shrink, z_pad)
     times["solids_s"] = time.perf_counter() - t
     log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),

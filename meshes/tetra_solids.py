@@ -114,19 +114,25 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
 
 
 def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
-          shrink: float = 0.0) -> dict[int, int]:
+          shrink: float = 0.0, z_pad: float | None = None) -> dict[int, int]:
     """The model of the box [lo, hi] with every yarn's pieces in it, fragmented into one
     conforming model (gmsh must be initialised, a model current). Returns volume tag -> phase
-    (0 the matrix, 1 + i yarn i)."""
+    (0 the matrix, 1 + i yarn i). With `z_pad` [mm], lo and hi are widened in z, in place, where
+    the skins reach nearer than z_pad to the box's top or bottom (a smooth skin swings past its
+    sections at a binder's sharp turn; a skin cut by the top face leaves that face unlike the
+    bottom one, and the periodic pairing fails)."""
     import gmsh
 
     occ = gmsh.model.occ
+    skins = [(i, add_skin(sections, textile.yarns[i].name))
+             for i in range(len(textile.yarns)) for sections in chains(textile, i, lo, hi, spacing, points, shrink)]
+    if z_pad is not None and skins:
+        z0, z1 = _z_bounds([t for _, t in skins])
+        lo[2], hi[2] = min(lo[2], z0 - z_pad), max(hi[2], z1 + z_pad)
     pieces = []
-    for i in range(len(textile.yarns)):
-        for sections in chains(textile, i, lo, hi, spacing, points, shrink):
-            solid = add_skin(sections, textile.yarns[i].name)
-            cut, _ = occ.intersect([(3, solid)], [(3, occ.addBox(*lo, *(hi - lo)))])
-            pieces += [(i, t) for d, t in cut if d == 3]
+    for i, solid in skins:
+        cut, _ = occ.intersect([(3, solid)], [(3, occ.addBox(*lo, *(hi - lo)))])
+        pieces += [(i, t) for d, t in cut if d == 3]
     glue = gmsh.option.getNumber("Geometry.OCCBooleanGlue")
     gmsh.option.setNumber("Geometry.OCCBooleanGlue", GLUE)
     try:
@@ -139,6 +145,21 @@ def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, poin
         for _, t in part:
             phase[t] = i + 1
     return phase
+
+
+def _z_bounds(solids: list[int]) -> tuple[float, float]:
+    """The solids' lowest and highest z [mm], from their triangulation (OCC's own boxes of spline
+    solids are loose)."""
+    import gmsh
+
+    gmsh.model.occ.synchronize()
+    old = gmsh.option.getNumber("Geometry.OCCBoundsUseStl")
+    gmsh.option.setNumber("Geometry.OCCBoundsUseStl", 1)
+    try:
+        boxes = np.array([gmsh.model.occ.getBoundingBox(3, t) for t in solids])
+    finally:
+        gmsh.option.setNumber("Geometry.OCCBoundsUseStl", old)
+    return float(boxes[:, 2].min()), float(boxes[:, 5].max())
 
 
 def periodic_pairs(lo: np.ndarray, hi: np.ndarray, axes: tuple[int, ...], tol: float) -> list:
