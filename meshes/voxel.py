@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 # Voxels a mesh may have (the bound of its own arrays; the memory estimate of what is built on it
 # comes on top): 5e7 voxels are about 12 GB of index and field arrays.
 MAX_VOXELS = 50_000_000
+COARSE = 0.03  # a yarn volume error above which the size is said to be too coarse (issue 30: 3 %)
 
 
 def voxel_counts(box: Box, size: float) -> tuple[int, int, int]:
@@ -115,5 +116,11 @@ def voxel_mesh(textile: Textile, box: Box, size: float, yarn_vf: list[float]) ->
     if overlap["voxels"]:
         log.warning("voxel mesh: %d voxels (%.4g mm^3) lie in two or more yarns; each went to the yarn it lies "
                     "deepest in (mesh_report.json: overlap)", overlap["voxels"], overlap["volume"])
+    errors = [(abs(y["relative_error"]), y["name"]) for y in mesh.report["yarns"] if y["relative_error"] is not None]
+    worst, name = max(errors, default=(0.0, ""))
+    if worst > COARSE:
+        log.warning("voxel mesh: %s's meshed volume is %.1f %% off its model's (voxels %.3g mm tall): the yarns "
+                    "are a few voxels thick at most; give a smaller --size", name, 100 * worst,
+                    (box.size / np.array(counts))[2])
     log.info("voxel mesh: %d elements in %.2f s", len(cells), mesh.report["seconds"])
     return mesh
