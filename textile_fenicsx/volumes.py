@@ -103,7 +103,7 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
 def _tet(textile: Textile, options: VolumeOptions, vf: list[float]) -> VolumeMesh:
     """The conforming tet mesh (meshes.tetra, on this rank) as a VolumeMesh."""
     from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh
-    from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+    from textile_fenicsx.meshes.volume import Box
 
     tet = tet_mesh(textile, TetOptions(size=options.size, gap=options.gap, z_range=options.z_range,
                                        memory_limit=options.memory_limit), MPI.COMM_SELF)
@@ -113,7 +113,6 @@ def _tet(textile: Textile, options: VolumeOptions, vf: list[float]) -> VolumeMes
     report = dict(tet.report)
     report["yarns"] = [{"name": y["yarn"], "meshed_volume": y["meshed_mm3"], "model_volume": y["model_mm3"],
                         "relative_error": y["error_percent"] / 100} for y in report["volume"]["per_yarn"]]
-    report["periodicity"] = {**periodic_mismatch(tet.points, box), "snapped_mm": report["periodicity"]["snapped_mm"]}
     return VolumeMesh("tet", box, tet.points, tet.tets, tet.phase, tet.fibre, yarn_vf, tet.names[1:], report)
 
 
