@@ -1,10 +1,11 @@
 """Plate + tension + contact solve of all yarns at once (DESIGN.md sections 5, 6 and 9).
 
 One module per idea:
-- parameters: PlateParameters, Mould, SolverOptions, Solution;
+- parameters: PlateParameters, Compaction, Mould, SolverOptions, Solution;
 - periodic: the unknowns (Periodicity, the one owner of the periodic numbering) and seam facets;
 - pattern: the combined matrix's fixed CSR pattern (FixedPattern);
 - contact: contact pairs as data, their forms derived from the contact energy;
+- flattening: yarns whose thickness is an unknown, held by their compaction law;
 - problem: ContactProblem, the assembled energy (owns K, the vectors and the direct solver);
 - newton: the iterations (exact contact, the default; the paper's penalty);
 - linear: PETSc options as dicts, the direct solver and its checks.
@@ -17,10 +18,11 @@ from textile_fenicsx.memory import release_freed_memory
 from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.linear import DIRECT_LDLT, DIRECT_LU, OUT_OF_CORE, SolverError, check_converged
 from textile_fenicsx.solver.newton import solve_exact, solve_penalty
-from textile_fenicsx.solver.parameters import METHODS, Mould, PlateParameters, Solution, SolverOptions
+from textile_fenicsx.solver.parameters import METHODS, Compaction, Mould, PlateParameters, Solution, SolverOptions
 from textile_fenicsx.solver.problem import ContactProblem
 
-__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "OUT_OF_CORE", "ContactProblem", "Mould", "PlateParameters",
+__all__ = ["DIRECT_LDLT", "DIRECT_LU", "METHODS", "OUT_OF_CORE", "Compaction", "ContactProblem", "Mould",
+           "PlateParameters",
            "Solution", "SolverError", "SolverOptions", "check_converged", "solve", "solve_problem"]
 
 log = logging.getLogger(__name__)
@@ -38,6 +40,8 @@ def solve_problem(problem: ContactProblem, start: Solution | None = None, keep: 
         pen, volume = problem.penetration(out.gaps)
         gap, contact = problem.fields(out.gaps, out.active)
         unknowns = (out.x.getArray().copy(), out.forces)
+        dt = problem.thickness_changes(out.x)
+        pressure = None if out.forces is None else problem.platen_pressure(out.forces)
         w = problem.displacements(out.x)
         out.x.destroy()
         factorisations = problem.factorisations
@@ -48,7 +52,8 @@ def solve_problem(problem: ContactProblem, start: Solution | None = None, keep: 
     log.info("contact: %s (%d Newton steps, %d factorisations)", out.reason, out.iterations, factorisations)
     return Solution(w=w, gap=gap, contact=contact, iterations=out.iterations, updates=out.updates,
                     history=out.history, max_penetration=pen, penetration_volume=volume, converged=out.converged,
-                    reason=out.reason, times={"solve": time.perf_counter() - t0}, unknowns=unknowns)
+                    reason=out.reason, times={"solve": time.perf_counter() - t0}, unknowns=unknowns, dt=dt,
+                    pressure=pressure)
 
 
 def solve(ms: MidSurfaces, params: PlateParameters = PlateParameters(), options: SolverOptions = SolverOptions(),

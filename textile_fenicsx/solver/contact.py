@@ -7,6 +7,9 @@ just before use. The gap at a dof is g = g0 + x[u] - x[l] (T x: crossing yarns s
 mesh's nodes, so the lower yarn's value at the same point is its own dof there).
 A mould (parameters.Mould) adds one constraint per yarn node and platen, with the platen in the
 place of the other yarn: g = z - t/2 - bottom >= 0 and g = top - (z + t/2) >= 0.
+Where the yarns flatten (solver/flattening.py), a yarn's bottom and top surfaces have unknowns of
+their own: a gap reads the upper yarn's bottom and the lower yarn's top, a platen the yarn's bottom
+or top, and the maximum packing adds a constraint between a node's two (PACKING).
 """
 
 from dataclasses import dataclass
@@ -19,13 +22,15 @@ import dolfinx
 from textile_fenicsx.forms import contact_forms, penetration_volume
 from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.parameters import Mould, PlateParameters
-from textile_fenicsx.solver.periodic import Periodicity
+from textile_fenicsx.solver.periodic import BOTTOM, TOP, Periodicity
 
 __all__ = ["ContactPair", "MouldRows", "Nodes", "PairForms", "build_pairs", "contact_nodes", "gathered_unknowns",
            "initial_gap", "jacobian_values", "mould_rows", "residual_values"]
 
 # a node's "other yarn" where it is a platen: no pair, no unknown
 NONE = -1
+# the pair of a maximum packing constraint (a yarn node's top against its own bottom)
+PACKING = -2
 
 
 @dataclass(frozen=True)
@@ -96,12 +101,13 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         g0, margin = initial_gap(ms, u, l, min_gap)
         parent = numbering.parent_global[yu.to_parent[du]]  # crossing yarns share the parent's dofs
         owner = numbering.parent_owner(yu.to_parent[du])
-        cu, cl = numbering.unknown(u, parent), numbering.unknown(l, parent)
+        cu, cl = numbering.unknown(u, parent, BOTTOM), numbering.unknown(l, parent, TOP)
         # T^T J T: J's entry (i, j) adds +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j);
         # a column may be a dof this rank does not hold (rows get couplings from cells elsewhere)
         i = numbering.parent_global[yu.to_parent[np.repeat(np.arange(n_owned), np.diff(M.indptr[:n_owned + 1]))]]
         j = numbering.column_parents(yu, M.index_map(1).local_to_global(M.indices[:nnz]))
-        ui, uj, li, lj = (numbering.unknown(y, d) for y, d in ((u, i), (u, j), (l, i), (l, j)))
+        ui, uj, li, lj = (numbering.unknown(y, d, side) for y, d, side in
+                          ((u, i, BOTTOM), (u, j, BOTTOM), (l, i, TOP), (l, j, TOP)))
         rows.append(np.concatenate([ui, ui, li, li]))
         cols.append(np.concatenate([uj, lj, uj, lj]))
         owned_cells = sub_cells[sub_cells < yu.mesh.topology.index_map(2).size_local]
@@ -174,10 +180,10 @@ def mould_rows(ms: MidSurfaces, numbering: Periodicity, images: list[np.ndarray]
     parts = []
     for y, image in zip(ms.yarns, images):
         dofs = np.flatnonzero(~image[:y.V.dofmap.index_map.size_local])
-        u = numbering.yarn_unknowns(y, dofs)
+        u, top = numbering.yarn_unknowns(y, dofs, BOTTOM), numbering.yarn_unknowns(y, dofs, TOP)
         z0, t = y.z0.x.array[dofs], y.t.x.array[dofs]
         ones = np.ones(len(u))
-        parts.append((np.concatenate([u, u]), np.concatenate([ones, -ones]),
+        parts.append((np.concatenate([u, top]), np.concatenate([ones, -ones]),
                       np.concatenate([z0 - t / 2 - mould.bottom, mould.top - (z0 + t / 2)]) - min_gap))
     unknown, sign, g0 = (np.concatenate(a) for a in zip(*parts))
     return MouldRows(unknown.astype(np.int64), sign, g0)
@@ -227,14 +233,15 @@ class Nodes:
 
 
 def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list[np.ndarray],
-                  mould: MouldRows | None = None) -> Nodes:
+                  mould: MouldRows | None = None, packing=None) -> Nodes:
     """One constraint per (pair, node) of the overlaps: the gap at least the node's margin (the
     P2 field's overstatement of the model's gap around it). A periodic image (a dof on the right
     or top side, the slave of one on the left or bottom) is the same constraint as its master's
     and is left out. A node seen by several ranks (it lies on the cells of the pair they hold)
     is given to one of them (`_claim`): the set of constraints, like the unknowns, does not depend
     on the partition. images[i]: yarn i's dofs that are images (bool over its local dofs).
-    Then the mould's constraints, if any (their unknowns must be in `need`)."""
+    Then the mould's constraints, if any, and the maximum packing's (flattening.PackingRows; their
+    unknowns must be in `need`)."""
     seen = [np.flatnonzero(~images[p.upper][p.dofs]) for p in pairs]
     key = np.concatenate([k + len(pairs) * p.parent[at] for k, (p, at) in enumerate(zip(pairs, seen))]
                          + [np.zeros(0, np.int64)])  # (pair, parent dof) as one number
@@ -251,6 +258,10 @@ def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list
         none = np.full(len(at), NONE, np.int64)
         parts.append((none, none, np.where(bottom, at, slot), np.where(bottom, slot, at),
                       np.where(bottom, mould.unknown, NONE), np.where(bottom, NONE, mould.unknown), mould.g0))
+    if packing is not None:
+        mark = np.full(len(packing.g0), PACKING, np.int64)
+        parts.append((mark, mark, np.searchsorted(need, packing.top), np.searchsorted(need, packing.bottom),
+                      packing.top, packing.bottom, packing.g0))
     empty = (np.zeros(0, np.int64),) * 6 + (np.zeros(0),)
     pair, at, at_u, at_l, rows_u, rows_l, g0 = (np.concatenate(a) for a in zip(*(parts or [empty])))
     return Nodes(pair.astype(np.int64), at.astype(np.int64), at_u.astype(np.int64), at_l.astype(np.int64),

@@ -27,6 +27,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from textile_fenicsx.solver.contact import NONE
+from textile_fenicsx.solver.flattening import thinnest_stack
 from textile_fenicsx.solver.problem import ContactProblem
 
 __all__ = ["Outcome", "solve_exact", "solve_penalty"]
@@ -142,7 +143,7 @@ class _InteriorPoint:
         rp = g - s
         mu = self.mean(s * lam)
         w = np.minimum(lam / s, MAX_WEIGHT * self.k)  # capped: a closed node's weight grows like 1/mu
-        problem.newton_matrix(c_nodes=w)
+        problem.newton_matrix(c_nodes=w, at=self.x)
 
         def direction(rc):
             """(ds, dlam), with dx in self.dx, for the complementarity residual rc = s lam - target."""
@@ -206,9 +207,12 @@ def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
         stalled = stalled + 1 if line["step"] <= STALLED_STEP and line["max_penetration"] > opts.penetration_tol else 0
         if stalled >= STALLED_STEPS:
             return _ended(problem, ip, it, history, False, _infeasible(problem, g))
-    return _ended(problem, ip, opts.max_iterations, history, False,
-                  f"the contact iteration reached its cap of {opts.max_iterations} steps (largest penetration "
-                  f"{history[-1]['max_penetration']:.2e} mm, last step moved {history[-1]['moved_mm']:.1e} mm)")
+    reason = (f"the contact iteration reached its cap of {opts.max_iterations} steps (largest penetration "
+              f"{history[-1]['max_penetration']:.2e} mm, last step moved {history[-1]['moved_mm']:.1e} mm)")
+    if problem.compaction is not None and history[-1]["max_penetration"] > opts.penetration_tol:
+        # an interior point does not stall on yarns pressed beyond their packing: it keeps moving
+        reason = f"{reason}: {_infeasible(problem, ip.gaps(ip.x))}"
+    return _ended(problem, ip, opts.max_iterations, history, False, reason)
 
 
 def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
@@ -219,7 +223,7 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
     worst = (float(-g[k]), nodes.pair[k], nodes.at[k]) if k >= 0 else (-np.inf, -1, -1)
     pen, pair, at = max(comm.allgather(worst), key=lambda w: w[0])
     where = ""
-    if comm.rank == comm.allgather(worst).index(max(comm.allgather(worst), key=lambda w: w[0])) and pair != NONE:
+    if comm.rank == comm.allgather(worst).index(max(comm.allgather(worst), key=lambda w: w[0])) and pair >= 0:
         p = problem.pairs[pair]
         y = problem.ms.yarns[p.upper]
         xy = y.V.tabulate_dof_coordinates()[p.dofs[at], :2]
@@ -229,6 +233,13 @@ def _infeasible(problem: ContactProblem, g: np.ndarray) -> str:
         where = (f" between {names[p.upper]} (yarn {p.upper}) above and {names[p.lower]} (yarn {p.lower}) below "
                  f"at ({xy[0]:.3f}, {xy[1]:.3f}) mm")
     where = max(comm.allgather(where), key=len)
+    if problem.compaction is not None and problem.mould is not None:
+        least, (x, y) = thinnest_stack(problem.ms, problem.compaction)
+        if least > problem.mould.thickness - 2 * problem.options.min_gap:
+            return (f"the yarns cannot be pressed into the mould's {problem.mould.thickness:.4g} mm: packed to the "
+                    f"maximum fibre fraction {problem.compaction.phi_max:.4g} of the compaction law, the yarns "
+                    f"stacked at ({x:.3f}, {y:.3f}) mm are still {least:.4g} mm thick (give a thicker mould or a lower "
+                    "fibre volume fraction)")
     if problem.mould is not None:
         return (f"no position of the yarns keeps every contact inside the mould: {pen:.3g} mm of penetration "
                 f"remain{where or ' at a platen'}; the mould ({problem.mould.thickness:.4g} mm) is thinner than the "

@@ -10,7 +10,7 @@ from textile_fenicsx.limits import MAX_ITERATIONS, check_count
 from textile_fenicsx.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE
 from textile_fenicsx.solver.linear import DIRECT_LDLT, OUT_OF_CORE
 
-__all__ = ["METHODS", "Mould", "PlateParameters", "Solution", "SolverOptions"]
+__all__ = ["METHODS", "Compaction", "Mould", "PlateParameters", "Solution", "SolverOptions"]
 
 METHODS = ("exact", "penalty")
 
@@ -42,6 +42,36 @@ class PlateParameters:
         if self.Db12 is None:
             object.__setattr__(self, "Db12", (self.Db1 + self.Db2) / 4)
         check_positive("Db12", self.Db12, allow_zero=True)
+
+
+@dataclass(frozen=True)
+class Compaction:
+    """The yarns' transverse compaction (DESIGN.md 5, forms/compression.py): each yarn's thickness is
+    an unknown beside its height, held by Van Wyk's law p = k E_f (phi^3 - phi0^3) with the width kept
+    (phi = phi0 t0 / t).
+
+    modulus: k E_f [N/mm^2 = MPa]. phi0: each yarn's relaxed intra-yarn fibre fraction [-] (one
+    number for all, or one per plate yarn). phi_max: the maximum packing [-] no yarn may exceed
+    (default: the hexagonal packing of equal circles, pi / (2 sqrt 3) = 0.9069).
+    """
+
+    modulus: float
+    phi0: float | tuple[float, ...] = 0.65
+    phi_max: float = float(np.pi / (2 * np.sqrt(3)))
+
+    def __post_init__(self):
+        check_positive("compaction modulus", self.modulus)
+        check_positive("maximum packing", self.phi_max)
+        if self.phi_max >= 1:
+            raise TextileError(f"maximum packing must be below 1, got {self.phi_max:g}")
+        for phi in np.atleast_1d(self.phi0):
+            if not 0 < phi < self.phi_max:
+                raise TextileError(f"a yarn's relaxed fibre fraction must lie between 0 and the maximum packing "
+                                   f"{self.phi_max:.4g}, got {phi:g}")
+
+    def fraction(self, yarn: int) -> float:
+        """The relaxed fibre fraction phi0 of plate yarn `yarn` [-]."""
+        return float(self.phi0) if np.isscalar(self.phi0) else float(self.phi0[yarn])  # type: ignore[index]
 
 
 @dataclass(frozen=True)
@@ -113,7 +143,8 @@ class SolverOptions:
 class Solution:
     """Displacements per yarn and how they were found.
 
-    w: per yarn, its displacement [mm] (a Function on its mid-surface's P2 space). gap, contact:
+    w: per yarn, its displacement [mm] (a Function on its mid-surface's P2 space); dt: per yarn,
+    its change of thickness [mm] where the yarns flatten (Compaction), else None. gap, contact:
     per yarn, its gap to the yarn below [mm] (0 where nothing is below) and the contact state
     (1 where a constraint or the penalty is active), for output. history: one dict per Newton step.
     max_penetration: largest -g at the overlap nodes [mm]; penetration_volume: the integral of
@@ -132,6 +163,8 @@ class Solution:
     reason: str
     times: dict = field(default_factory=dict)
     unknowns: object = None  # this rank's part of the unknowns vector (to start a related solve from)
+    dt: list | None = None
+    pressure: float | None = None  # a closed mould's platen pressure [N/mm^2 = MPa]: its bottom force over the cell
 
     def __repr__(self) -> str:
         state = "converged" if self.converged else "not converged"

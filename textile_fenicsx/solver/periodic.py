@@ -1,9 +1,12 @@
-"""The unknowns: one per yarn dof that is not a periodic image, numbered once (DESIGN.md 6).
+"""The unknowns: one per yarn dof that is not a periodic image, numbered once (DESIGN.md 6);
+two where the yarns flatten (the heights of the yarn's bottom and top surfaces: `surfaces=2`).
 
 `Periodicity` is the one owner of this numbering. Every yarn dof on the right/top seam or in the
 ghost strip is a slave of its image inside the cell; `unknown(i, parent_dofs)` resolves slaves to
 their masters and returns the unknowns' global indices, and `yarn_map(y)` is the sparse map R_i
 (yarn dofs -> unknowns, one 1 per row) that the plates are reduced with: K = sum R_i^T A_i R_i.
+With two surfaces, each yarn's unknowns on a rank are its bottom surface's then its top's, in the
+same order; `surface` (BOTTOM, TOP) picks one. With one, both name the same unknowns.
 """
 
 import numpy as np
@@ -14,15 +17,21 @@ import dolfinx
 from textile_fenicsx.meshes.midsurface import REAL, MidSurface, MidSurfaces
 from textile_fenicsx.solver.linear import SolverError
 
-__all__ = ["Periodicity", "seam_facet_tags"]
+__all__ = ["BOTTOM", "TOP", "Periodicity", "seam_facet_tags"]
+
+# the surface of a yarn an unknown moves (the same unknown for both where the yarns keep their thickness)
+BOTTOM, TOP = 0, 1
 
 
 class Periodicity:
     """Global numbering of the unknowns: per rank, per yarn, the owned master dofs. Frozen once
     built; every rank can look up any yarn dof's unknown."""
 
-    def __init__(self, ms: MidSurfaces):
+    def __init__(self, ms: MidSurfaces, surfaces: int = 1):
+        if surfaces not in (1, 2):
+            raise ValueError(f"a yarn has one or two surfaces of unknowns, not {surfaces}")
         V, comm = ms.V, ms.V.mesh.comm
+        self.surfaces = surfaces
         imap = V.dofmap.index_map
         self.comm = comm
         self.parent_global = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
@@ -37,7 +46,7 @@ class Periodicity:
         for y in ms.yarns:
             glob = self.parent_global[y.to_parent[:y.V.dofmap.index_map.size_local]]
             masters.append(np.sort(glob[~np.isin(glob, self.images[y.yarn][0])]))
-        n_local = int(sum(len(m) for m in masters))
+        n_local = int(sum(len(m) for m in masters)) * surfaces
         self.start = comm.exscan(n_local) or 0
         self.n = comm.allreduce(n_local, op=MPI.SUM)
         self.n_local = n_local
@@ -45,7 +54,7 @@ class Periodicity:
         pos, mine = self.start, []
         for m in masters:
             mine.append((m, np.arange(pos, pos + len(m), dtype=np.int64)))
-            pos += len(m)
+            pos += len(m) * surfaces
         every = comm.allgather(mine)
         self.lookup = []
         for i in range(len(ms.yarns)):
@@ -53,9 +62,16 @@ class Periodicity:
             vals = np.concatenate([part[i][1] for part in every])
             order = np.argsort(keys)
             self.lookup.append((keys[order], vals[order]))
+        # where each yarn's bottom unknowns begin on each rank, and how many (the top's follow them)
+        self._counts = [len(m) for m in masters]
+        counts = np.array(comm.allgather(self._counts), dtype=np.int64).reshape(comm.size, len(masters))
+        starts = np.array(comm.allgather(self.start), dtype=np.int64)[:, None] + surfaces * np.concatenate(
+            [np.zeros((comm.size, 1), np.int64), np.cumsum(counts, axis=1)[:, :-1]], axis=1)
+        self._yarn_counts, self._yarn_starts = counts.T.copy(), starts.T.copy()
 
-    def unknown(self, i: int, parent_global: np.ndarray) -> np.ndarray:
-        """Unknown index of yarn i at parent global dofs (slaves resolved to their masters)."""
+    def unknown(self, i: int, parent_global: np.ndarray, surface: int = BOTTOM) -> np.ndarray:
+        """Unknown index of yarn i at parent global dofs (slaves resolved to their masters), of
+        its bottom or top surface (the same where there is one)."""
         img_keys, img_vals = self.images[i]
         master = np.asarray(parent_global, dtype=np.int64).copy()
         if len(img_keys):
@@ -67,7 +83,21 @@ class Periodicity:
         if len(master) and (len(keys) == 0 or np.any(keys[k] != master)):
             raise SolverError(f"yarn {i}: a dof has no master unknown (its periodic image is not a dof of the "
                               "yarn: the footprint is not periodic on the mesh)")
+        if surface == TOP and self.surfaces == 2:  # the top's follow the bottom's on their rank
+            rank = np.searchsorted(self._yarn_starts[i], vals[k], side="right") - 1
+            return vals[k] + self._yarn_counts[i][rank]
         return vals[k]
+
+    def local_surfaces(self, one: np.ndarray) -> np.ndarray:
+        """This rank's part of a vector over one surface's unknowns (a numbering with surfaces=1 of
+        the same mesh) as a vector over both: each yarn's values on its bottom and its top."""
+        if self.surfaces == 1:
+            return one.copy()
+        parts, at = [], 0
+        for n in self._counts:
+            parts += [one[at:at + n], one[at:at + n]]
+            at += n
+        return np.concatenate(parts + [np.zeros(0)])
 
     def parent_owner(self, local: np.ndarray) -> np.ndarray:
         """The ranks owning local parent dofs."""
@@ -77,9 +107,9 @@ class Periodicity:
         """Per yarn, which of its local dofs (owned and ghost) are periodic images (slaves)."""
         return [np.isin(self.parent_global[y.to_parent], self.images[y.yarn][0]) for y in ms.yarns]
 
-    def yarn_unknowns(self, y: MidSurface, dofs: np.ndarray) -> np.ndarray:
-        """Unknowns of yarn y's local dofs."""
-        return self.unknown(y.yarn, self.parent_global[y.to_parent[dofs]])
+    def yarn_unknowns(self, y: MidSurface, dofs: np.ndarray, surface: int = BOTTOM) -> np.ndarray:
+        """Unknowns of yarn y's local dofs (of its bottom or top surface)."""
+        return self.unknown(y.yarn, self.parent_global[y.to_parent[dofs]], surface)
 
     def column_parents(self, y: MidSurface, cols: np.ndarray) -> np.ndarray:
         """Global parent dofs of yarn y's dofs given by their global index in y's space, which may
@@ -111,10 +141,10 @@ class Periodicity:
         v.set(0.0)
         return v
 
-    def yarn_map(self, y: MidSurface) -> PETSc.Mat:
-        """R: yarn y's dofs (owned rows) -> unknowns, one 1 per row."""
+    def yarn_map(self, y: MidSurface, surface: int = BOTTOM) -> PETSc.Mat:
+        """R: yarn y's dofs (owned rows) -> unknowns (of its bottom or top surface), one 1 per row."""
         imap = y.V.dofmap.index_map
-        cols = self.yarn_unknowns(y, np.arange(imap.size_local, dtype=np.int32))  # owned rows in order
+        cols = self.yarn_unknowns(y, np.arange(imap.size_local, dtype=np.int32), surface)  # owned rows in order
         R = PETSc.Mat().createAIJ(((imap.size_local, imap.size_global), (self.n_local, self.n)), comm=self.comm)
         indptr = np.arange(imap.size_local + 1, dtype=PETSc.IntType)
         R.setPreallocationCSR((indptr, cols.astype(PETSc.IntType), np.ones(len(cols), PETSc.ScalarType)))

@@ -29,6 +29,7 @@ from textile_fenicsx.errors import TextileError
 from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.contact import (
+    NONE,
     build_pairs,
     contact_nodes,
     gathered_unknowns,
@@ -37,10 +38,17 @@ from textile_fenicsx.solver.contact import (
     mould_rows,
     residual_values,
 )
+from textile_fenicsx.solver.flattening import (
+    add_gradient,
+    flattening_terms,
+    hessian_values,
+    packing_rows,
+    thickness_changes,
+)
 from textile_fenicsx.solver.linear import DirectSolver, SolverError, mumps_error, negative_pivots, null_pivots
-from textile_fenicsx.solver.parameters import Mould, PlateParameters, SolverOptions
+from textile_fenicsx.solver.parameters import Compaction, Mould, PlateParameters, SolverOptions
 from textile_fenicsx.solver.pattern import FixedPattern
-from textile_fenicsx.solver.periodic import Periodicity, seam_facet_tags
+from textile_fenicsx.solver.periodic import BOTTOM, TOP, Periodicity, seam_facet_tags
 
 __all__ = ["ContactProblem"]
 
@@ -52,11 +60,15 @@ ROUND_OFF_PIVOTS = 2
 
 def assemble_plates(ms: MidSurfaces, numbering: Periodicity, pattern: FixedPattern, params: PlateParameters,
                     loads: dict, kf: float) -> tuple[list, PETSc.Vec]:
-    """Each yarn's plate matrix into `pattern` (as unknowns), and the maps R_i and the load b0.
+    """Each yarn's plate matrix into `pattern` (as unknowns), and the maps R_i (per yarn, one per
+    surface of unknowns) and the load b0.
     The energies act on z0 + w: their restoring force is -A z0, the assembled matrix times z0
-    (the action a(z0, v) as a matrix-vector product; ufl.action took 0.7 s of a satin run)."""
+    (the action a(z0, v) as a matrix-vector product; ufl.action took 0.7 s of a satin run). Where
+    the yarns flatten, w is the mean of the bottom's and the top's unknowns: A / 4 at each pair of
+    them, the load b0 / 2 on each."""
     p = params
     R, b = [], numbering.vector()
+    sides = (BOTTOM, TOP)[:numbering.surfaces]
     for y in ms.yarns:
         msh = y.mesh
         dS = ufl.Measure("dS", msh, subdomain_data=seam_facet_tags(y), subdomain_id=1)
@@ -85,10 +97,17 @@ def assemble_plates(ms: MidSurfaces, numbering: Periodicity, pattern: FixedPatte
             F.destroy()
         indptr, cols, vals = A.getValuesCSR()
         rows = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
-        pattern.add_fixed(numbering.yarn_unknowns(y, rows),
-                          numbering.unknown(y.yarn, numbering.column_parents(y, cols)), vals)
-        R.append(numbering.yarn_map(y))
-        R[-1].multTransposeAdd(bi, b, b)
+        columns = numbering.column_parents(y, cols)
+        if len(sides) == 2:
+            vals = vals / 4
+            bi.scale(0.5)
+        for row_side in sides:
+            for col_side in sides:
+                pattern.add_fixed(numbering.yarn_unknowns(y, rows, row_side),
+                                  numbering.unknown(y.yarn, columns, col_side), vals)
+        R.append([numbering.yarn_map(y, side) for side in sides])
+        for Ri in R[-1]:
+            Ri.multTransposeAdd(bi, b, b)
         A.destroy()
         bi.destroy()
     return R, b
@@ -99,24 +118,35 @@ class ContactProblem:
 
     def __init__(self, ms: MidSurfaces, params: PlateParameters = PlateParameters(),
                  options: SolverOptions = SolverOptions(), loads: dict | None = None,
-                 foundation_stiffness: float = 0.0, mould: Mould | None = None):
+                 foundation_stiffness: float = 0.0, mould: Mould | None = None,
+                 compaction: Compaction | None = None):
         self.ms, self.params, self.options, self.mould = ms, params, options, mould
+        self.compaction = compaction
         self.exact = options.method == "exact"
         if self.exact and params.Et == 0:
             raise TextileError("Et must be > 0 with the exact contact method: the spring where yarns are apart is "
                                "all that holds a yarn's height against its neighbours (the default is 1e-4 N/mm^3)")
         if mould is not None and not self.exact:
             raise TextileError("a mould needs the exact contact method (its platens are constraints)")
+        if compaction is not None and not self.exact:
+            raise TextileError("yarns that flatten need the exact contact method (their packing is a constraint)")
         self.comm = ms.V.mesh.comm
-        self.numbering = numbering = Periodicity(ms)
+        self.numbering = numbering = Periodicity(ms, 1 if compaction is None else 2)
         pattern = FixedPattern(self.comm, numbering.start, numbering.n_local)
         self.R, self.b_fixed = assemble_plates(ms, numbering, pattern, params, loads or {}, foundation_stiffness)
         self._translation(foundation_stiffness, mould is not None)
         images = numbering.image_dofs(ms)
         platens = None if mould is None else mould_rows(ms, numbering, images, mould, options.min_gap)
-        extra = np.zeros(0, np.int64) if platens is None else platens.unknown
+        packing = None if compaction is None else packing_rows(ms, numbering, images, compaction)
+        extra = np.concatenate([np.zeros(0, np.int64)] + ([] if platens is None else [platens.unknown])
+                               + ([] if packing is None else [packing.top, packing.bottom]))
         self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact, extra, options.min_gap)
-        self.nodes = contact_nodes(self.comm, self.pairs, need, images, platens) if self.exact else None
+        self.flattening, self._flat_entries = [], 0
+        if compaction is not None:
+            self.flattening, (fr, fc) = flattening_terms(ms, numbering, self.R, compaction)
+            self._flat_entries = len(fr)
+            rows, cols = np.concatenate([rows, fr]), np.concatenate([cols, fc])
+        self.nodes = contact_nodes(self.comm, self.pairs, need, images, platens, packing) if self.exact else None
         if self.nodes is not None:
             nr, nc = self.nodes.pattern()
             rows, cols = np.concatenate([rows, nr]), np.concatenate([cols, nc])
@@ -144,8 +174,8 @@ class ContactProblem:
         are read again, and for the exact method the apart spring's load at them, -T^T J g0, moves
         by -T^T J (g0_new - g0_old) (J does not depend on g). Not for a problem with a mould (its
         platens' gaps are rows of its own): build a new one."""
-        if self.mould is not None:
-            raise ValueError("a problem with a mould cannot be renewed: build a new one")
+        if self.mould is not None or self.compaction is not None:
+            raise ValueError("a problem with a mould or yarns that flatten cannot be renewed: build a new one")
         old = [p.g0 for p in self.pairs]
         self.pairs = [replace(p, g0=g0, margin=margin) for p, (g0, margin) in
                       zip(self.pairs, (initial_gap(self.ms, p.upper, p.lower, options.min_gap) for p in self.pairs))]
@@ -164,10 +194,13 @@ class ContactProblem:
         area-weighted mean of w would give), unknown 0 is pinned in every Newton matrix (`pin`),
         and `displacements` shifts the solution to zero mean."""
         m = self.numbering.vector()
-        for y, R in zip(self.ms.yarns, self.R):
+        for y, maps in zip(self.ms.yarns, self.R):
             mi = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(ufl.TestFunction(y.V) * y.dx))
             mi.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            R.multTransposeAdd(mi, m, m)
+            if len(maps) == 2:  # m . x: the area-weighted mean of the mid-surfaces' heights
+                mi.scale(0.5)
+            for R in maps:
+                R.multTransposeAdd(mi, m, m)
             mi.destroy()
         self.area_weights, self.area = m, m.sum()
         self.free_translation = not kf and not moulded
@@ -175,9 +208,10 @@ class ContactProblem:
         if self.free_translation:
             self.b_fixed.axpy(-self.b_fixed.sum() / self.area, m)
 
-    def _variable(self, jacobians: list[np.ndarray], c) -> np.ndarray:
-        """Variable values in the pattern's order: the pairs' Jacobian entries, then the nodes'."""
-        parts = list(jacobians) + [np.zeros(0)]
+    def _variable(self, jacobians: list[np.ndarray], c, hessian: np.ndarray | None = None) -> np.ndarray:
+        """Variable values in the pattern's order: the pairs' Jacobian entries, the compaction
+        energy's Hessian (flattening.py), then the nodes'."""
+        parts = list(jacobians) + [np.zeros(0), np.zeros(self._flat_entries) if hessian is None else hessian]
         if self.nodes is not None:
             parts.append(self.nodes.values(np.broadcast_to(c, self.nodes.g0.shape).astype(float)))
         return np.concatenate(parts)
@@ -215,6 +249,7 @@ class ContactProblem:
         if not self.exact:
             assert g is not None  # the penalty method's residual depends on the gaps
             self._add_contact(r, [residual_values(p, gp) for p, gp in zip(self.pairs, g)])
+        add_gradient(self.flattening, x, r)
         return r
 
     def energy(self, x: PETSc.Vec, g: list[np.ndarray]) -> float:
@@ -231,15 +266,19 @@ class ContactProblem:
             local += dolfinx.fem.assemble_scalar(p.forms.energy)
         return fixed + self.comm.allreduce(local, op=MPI.SUM)
 
-    def newton_matrix(self, g: list[np.ndarray] | None = None, c_nodes=0.0) -> PETSc.Mat:
-        """K = K0 + the contact Jacobian (the spring, or the penalty's at gaps g) + C^T diag(c_nodes) C,
-        factorised."""
+    def newton_matrix(self, g: list[np.ndarray] | None = None, c_nodes=0.0, at: PETSc.Vec | None = None) -> PETSc.Mat:
+        """K = K0 + the contact Jacobian (the spring, or the penalty's at gaps g) + the compaction
+        energy's Hessian at unknowns `at` (yarns that flatten) + C^T diag(c_nodes) C, factorised."""
         if self.exact:  # the spring is in the constant part already
             jac = [np.zeros(self._pair_entries)]
         else:
             assert g is not None  # the penalty method's Jacobian depends on the gaps
             jac = [jacobian_values(p, gp) for p, gp in zip(self.pairs, g)]
-        self.pattern.fill(self.K, self._variable(jac, c_nodes), pin=self.pin)
+        hessian = None
+        if self.flattening:
+            assert at is not None  # the compaction energy's Hessian depends on the thickness
+            hessian = hessian_values(self.flattening, at)
+        self.pattern.fill(self.K, self._variable(jac, c_nodes, hessian), pin=self.pin)
         self.K.setOption(PETSc.Mat.Option.SPD, True)  # pinned: MUMPS' SPD LDL^T (SYM = 1); new values reset it
         self.solver.factor(self.K)
         self.factorisations += 1
@@ -326,11 +365,31 @@ class ContactProblem:
         if self.free_translation:
             x.shift(-self.area_weights.dot(x) / self.area)
         w = []
-        for y, R in zip(self.ms.yarns, self.R):
+        for y, maps in zip(self.ms.yarns, self.R):
             w.append(dolfinx.fem.Function(y.V, name="w"))
-            R.mult(x, w[-1].x.petsc_vec)
+            maps[0].mult(x, w[-1].x.petsc_vec)
+            if len(maps) == 2:  # the mid-surface: the mean of the bottom's and the top's
+                top = w[-1].x.petsc_vec.duplicate()
+                maps[1].mult(x, top)
+                w[-1].x.petsc_vec.axpy(1.0, top)
+                w[-1].x.petsc_vec.scale(0.5)
+                top.destroy()
             w[-1].x.scatter_forward()
         return w
+
+    def thickness_changes(self, x: PETSc.Vec) -> list[dolfinx.fem.Function] | None:
+        """Per yarn its thickness change dt [mm] where the yarns flatten, else None."""
+        return thickness_changes(self.flattening, x) if self.flattening else None
+
+    def platen_pressure(self, forces: np.ndarray) -> float | None:
+        """A mould's pressure on the fabric [N/mm^2 = MPa]: the bottom platen's force (the sum of its
+        nodes' forces) over the cell's area; None without a mould."""
+        if self.mould is None or self.nodes is None:
+            return None
+        n = self.nodes
+        bottom = (n.pair == NONE) & (n.rows_l == NONE)
+        total = self.comm.allreduce(float(np.sum(forces[bottom])), op=MPI.SUM)
+        return total / self.ms.projected.cell.area
 
     def fields(self, g: list[np.ndarray], active: list[np.ndarray]) -> tuple[list, list]:
         """Per yarn, its gap to the yarn below [mm] (0 where none is) and where contact is active (1),
@@ -354,5 +413,6 @@ class ContactProblem:
     def destroy(self) -> None:
         """Free the PETSc objects (the factors first)."""
         self.solver.destroy()
-        for obj in (self.K, self.K_fixed, self.b_fixed, self.area_weights, self._gather, self._gathered, *self.R):
+        for obj in (self.K, self.K_fixed, self.b_fixed, self.area_weights, self._gather, self._gathered,
+                    *(R for maps in self.R for R in maps)):
             obj.destroy()

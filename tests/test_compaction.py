@@ -1,0 +1,85 @@
+"""Yarns that flatten (DESIGN.md 5, solver/flattening.py): the compaction law against closed forms."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from textile_fenicsx.meshes.midsurface import plate_surfaces
+from textile_fenicsx.meshes.projected import plate_mesh
+from textile_fenicsx.solver import Compaction, ContactProblem, Mould, SolverOptions, solve_problem
+from textile_fenicsx.textile import Cell
+
+T0, MODULUS, PHI0 = 0.3, 50.0, 0.6  # relaxed thickness [mm], k E_f [MPa], relaxed fibre fraction
+
+
+def van_wyk(t, t0=T0, modulus=MODULUS, phi0=PHI0):
+    """p(t) = k E_f phi0^3 ((t0 / t)^3 - 1) [MPa] (forms/compression.py)."""
+    return modulus * phi0**3 * ((t0 / t) ** 3 - 1)
+
+
+def pressed_plate(mould: float, seed: float = 0.5, thickness=lambda x: T0 + 0 * x[0], L: float = 2.0,
+                  **options):
+    """One yarn covering the periodic cell, mid-surface at z = 0, between platens z = -+ mould / 2."""
+    ms = plate_surfaces(plate_mesh(Cell(L, L), seed), lambda x: 0 * x[0], thickness, (1.0, 0.0))
+    problem = ContactProblem(ms, options=SolverOptions(**options), mould=Mould(-mould / 2, mould / 2),
+                             compaction=Compaction(MODULUS, PHI0))
+    return ms, solve_problem(problem)
+
+
+def extreme(f, op):
+    comm = MPI.COMM_WORLD
+    return comm.allreduce(float(op(f.x.array)) if len(f.x.array) else (np.inf if op is np.min else -np.inf),
+                          op=MPI.MIN if op is np.min else MPI.MAX)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("mould", [0.27, 0.24, 0.2])
+def test_a_flat_yarn_between_platens_takes_the_laws_thickness_at_the_measured_pressure(mould):
+    # the platens close to `mould` on a yarn T0 thick: its thickness is the mould's everywhere, its
+    # mid-surface does not move (symmetry), and the platens' force over the cell is Van Wyk's p(T)
+    _, sol = pressed_plate(mould)
+    assert sol.converged, sol.reason
+    dt = sol.dt[0]
+    assert extreme(dt, np.min) == pytest.approx(mould - T0, abs=2e-6)  # the solver's tolerances
+    assert extreme(dt, np.max) == pytest.approx(mould - T0, abs=2e-6)
+    assert max(extreme(sol.w[0], np.max), -extreme(sol.w[0], np.min)) < 1e-9
+    assert sol.pressure == pytest.approx(van_wyk(mould), rel=1e-6)
+
+
+@pytest.mark.mpi
+def test_the_pressure_on_a_yarn_of_varying_thickness_converges_with_the_mesh():
+    # t0(x) = 0.3 + 0.05 cos(2 pi x / L) pressed to 0.3: where t0 > 0.3 the yarn is the mould's
+    # thickness, elsewhere it keeps its own (it touches nothing); the mid-surface stays at 0 by
+    # symmetry. The platens' force is then the integral of p(0.3; t0(x)) where t0 > 0.3,
+    # L / (2 pi) int_{-pi/2}^{pi/2} k E_f phi0^3 ((t0 / T)^3 - 1) L dtheta (closed form below)
+    L, T, a = 2.0, 0.3, 0.05
+    c = MODULUS * PHI0**3
+    # int_{-pi/2}^{pi/2} ((1 + r cos)^3 - 1) = 3 r 2 + 3 r^2 pi / 2 + r^3 4 / 3, r = a / T
+    r = a / T
+    exact = c * (6 * r + 1.5 * np.pi * r**2 + 4 / 3 * r**3) / (2 * np.pi)  # mean pressure [MPa]
+    errors = []
+    for seed in (0.4, 0.2, 0.1):
+        _, sol = pressed_plate(T, seed, lambda x: T + a * np.cos(2 * np.pi * x[0] / L), L)
+        assert sol.converged, sol.reason
+        assert extreme(sol.dt[0], np.max) <= 1e-6  # no yarn grows
+        errors.append(abs(sol.pressure - exact) / exact)
+    assert errors[-1] < 0.01, errors
+    assert errors[0] > errors[1] > errors[2], errors
+
+
+@pytest.mark.mpi
+def test_a_mould_beyond_the_maximum_packing_is_named():
+    # phi0 t0 / phi_max = 0.6 x 0.3 / 0.9069 = 0.198 mm is the thinnest the yarn can be
+    _, sol = pressed_plate(0.19, max_iterations=60)
+    assert not sol.converged
+    assert "maximum fibre fraction 0.9069" in sol.reason, sol.reason
+
+
+@pytest.mark.mpi
+def test_bad_compaction_parameters_are_named():
+    from textile_fenicsx.errors import TextileError
+
+    with pytest.raises(TextileError, match="compaction modulus"):
+        Compaction(-1.0)
+    with pytest.raises(TextileError, match="relaxed fibre fraction"):
+        Compaction(10.0, phi0=0.95)
