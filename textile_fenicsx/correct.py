@@ -79,6 +79,20 @@ class _Whole:
         return evaluate(self.w, _wrap(xy.reshape(-1, 2), self.cell), extrapolate=True).reshape(xy.shape[:2])
 
 
+class Flat:
+    """A yarn plate's flattening (compaction.py): a point of the yarn at height z over (x, y) moves by
+    (z - z0) dt / t there besides w, so the section thins about the plate's mid-surface as its
+    thickness t does (DESIGN.md 7)."""
+
+    def __init__(self, z0, ratio, cell: Cell):
+        self.z0, self.ratio, self.cell = z0, ratio, cell  # Functions: mid-height z0 and dt / t
+
+    def shift(self, xy: np.ndarray, z: np.ndarray) -> np.ndarray:
+        flat = _wrap(xy.reshape(-1, 2), self.cell)
+        z0, ratio = (evaluate(f, flat, extrapolate=True).reshape(z.shape) for f in (self.z0, self.ratio))
+        return (z - z0) * ratio
+
+
 # A leg's change of length goes where it is vertical: its height is weighted by the vertical part
 # of its tangent to this power (1 in the straight middle, 0.43 where it leans 25 degrees, 0.13 at
 # the slope of 3 where it meets its crowns). Shortened evenly in height, the rounded ends were
@@ -166,11 +180,12 @@ class _Crowns:
 
 
 def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 32,
-                   section_tol: float | None = None, most: int | None = None) -> Yarn:
+                   section_tol: float | None = None, most: int | None = None, flat: Flat | None = None) -> Yarn:
     """Yarn i moved by its displacement: w, a Function on its mid-surface (or, for a yarn cut
     into crowns, a _Crowns of their Functions), at stations (stations.py; at most `most`). Its
     sections are kept where the blend of their neighbours misses them by more than section_tol
-    [mm] (default SECTION_TOL of the height; 0 keeps every station's)."""
+    [mm] (default SECTION_TOL of the height; 0 keeps every station's). flat: the yarn's flattening
+    (a yarn that is one plate), whose sections then hold the area it leaves them."""
     yarn = textile.yarns[i]
     w = w if isinstance(w, _Crowns) else _Whole(w, textile.cell)
     s = stations(yarn, spacing, most)
@@ -194,6 +209,10 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     pts_xy = (pos[:, None, :2] + u0[..., None] * side0[:, None, :2]
               + (v0 * fade[:, None])[..., None] * up0[:, None, :2])
     w_pts = w.points(s, pts_xy, w_centre)
+    if flat is not None:  # each point also moves toward the plate's mid-surface as the yarn thins
+        flat_pts = flat.shift(pts_xy, pos[:, None, 2] + v0 * up0[:, None, 2])
+        flat_centre = flat.shift(pos[:, :2], pos[:, 2])
+        w_pts, w_centre = w_pts + flat_pts, w_centre + flat_centre
     new_pos = pos + np.outer(w_centre, [0.0, 0.0, 1.0])
     if yarn.periodic:  # the last station repeats the first, shifted by the period
         new_pos[-1] = new_pos[0] + yarn.period
@@ -210,7 +229,9 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     # the vertical shift varies over a tilted section. Where the area would grow the section
     # narrows; where it would shrink it thickens (widening would raise the thin flanks over the
     # neighbours, thickening spends the margin the exact contact keeps at the nodes)
-    ratio = (_areas(u0, v0) / _areas(u0, v_new))[:, None]
+    kept = _areas(u0, v0) if flat is None else \
+        _areas(u0, v0 + (flat_pts - flat_centre[:, None]) * up0[:, None, 2])  # the flattened section's
+    ratio = (kept / _areas(u0, v_new))[:, None]
     u_new, v_new = u0 * np.minimum(1.0, ratio), v_new * np.maximum(1.0, ratio)
     new_pos, polys = _centred(probe, new_pos, np.stack((u_new, v_new), axis=-1), yarn.periodic)
     tol = SECTION_TOL * _heights(polys).min() if section_tol is None else section_tol
@@ -373,9 +394,11 @@ def _cut(probe: Yarn, polys: np.ndarray, at: np.ndarray, normal: np.ndarray, ite
     return point(x1)
 
 
-def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int = 32, split=None) -> Textile:
+def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int = 32, split=None,
+                      flats: list | None = None) -> Textile:
     """The textile with every yarn moved by its displacement (w[k] for plate yarn k: yarn k itself,
-    or with `split` (legs.Split) the crown k of the plate model); collective."""
+    or with `split` (legs.Split) the crown k of the plate model); flats[k]: yarn k's flattening
+    (Flat; yarns that are one plate); collective."""
     if split is None or not split.any:
         displacements = list(w)
     else:
@@ -394,8 +417,9 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
                         "corrected yarn has a master node at each, and a model is read back with at most %d per "
                         "yarn, %d in all and %.3g surface points (limits.py)", y.name, bound,
                         y.length() / (bound - 1), spacing, MAX_NODES_PER_YARN, MAX_NODES, MAX_SURFACE_POINTS)
-    yarns = [corrected_yarn(textile, i, wi, spacing, n_points, most=bound)
-             for i, (wi, bound) in enumerate(zip(displacements, most))]
+    flats = flats or [None] * len(textile.yarns)
+    yarns = [corrected_yarn(textile, i, wi, spacing, n_points, most=bound, flat=flat)
+             for i, (wi, bound, flat) in enumerate(zip(displacements, most, flats))]
     c = textile.cell
     z = np.concatenate([y.nodes[:, 2] for y in yarns])
     heights = [max(s.height for s in y.section.sections()) for y in yarns]

@@ -9,14 +9,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import dolfinx
 import numpy as np
 from mpi4py import MPI
 
-from textile_fenicsx.correct import CorrectionOptions, corrected_textile
+from textile_fenicsx.compaction import CompactionCurve, CompactionTarget, compact, yarn_fibre_areas
+from textile_fenicsx.correct import CorrectionOptions, Flat, corrected_textile
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.memory import release_freed_memory
+from textile_fenicsx.metrics import mean_section_area
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
 from textile_fenicsx.slopes import slope_thickness
@@ -43,19 +47,23 @@ class Settings:
     [mm] (its cavity centred on the model's mid-plane; it closes only on a fabric that comes out
     thicker), "auto" (the default) for the thickness the textile is woven to where it states one
     (3D weaves: `Textile.thickness`; no more than the model's own thickness as its plates' nodes
-    see it, so that what lies between the nodes stays inside too), None for none."""
+    see it, so that what lies between the nodes stays inside too), None for none. compaction: press
+    the relaxed fabric further, its yarns flattening (compaction.py), or None (rigid yarns)."""
 
     mesh: MeshOptions = MeshOptions()
     plate: PlateParameters = PlateParameters()
     solver: SolverOptions = SolverOptions()
     correction: CorrectionOptions = CorrectionOptions()
     mould: float | str | None = "auto"
+    compaction: CompactionTarget | None = None
 
     def __post_init__(self):
         if self.mould is not None and self.mould != "auto":
             check_length("mould thickness", self.mould)
             if self.solver.method != "exact":
                 raise TextileError("a mould needs the exact contact method (its platens are constraints)")
+        if self.compaction is not None and self.solver.method != "exact":
+            raise TextileError("compaction needs the exact contact method (its platens are constraints)")
 
     def mould_thickness(self, textile: Textile) -> float | None:
         """The cavity's thickness for this textile [mm], None for no mould (auto: none with the
@@ -77,6 +85,9 @@ class Run:
     corrected: Textile | None
     times: dict = field(default_factory=dict)
     mould: Mould | None = None  # the mould's platens, where it closed on the fabric
+    compaction: CompactionCurve | None = None  # the platens' pressure against thickness, where pressed
+    flats: list | None = None  # per textile yarn its flattening (correct.Flat), where pressed
+    volume_ratio: list | None = None  # per textile yarn its plate's volume after / before, where pressed
     _metrics: dict | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
@@ -156,6 +167,10 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     begin("mesh")
     start = t = time.perf_counter()
     split = plate_model(textile, settings.mesh.seed)  # binder legs are not plates (legs.py)
+    if settings.compaction is not None and split.any:
+        raise TextileError(f"{textile.name}: compaction of a weave with binder legs through the thickness is not "
+                           "modelled (its legs are not plates and cannot flatten); press 2D weaves, or solve it "
+                           "without compaction")
     projected = projected_mesh(split.plate, settings.mesh, comm, settings.solver.bytes_per_dof)
     times["mesh"] = time.perf_counter() - t
     begin("midsurfaces")
@@ -195,17 +210,31 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
         del problem
         release_freed_memory()
     times["solve"] = time.perf_counter() - t
+    curve, flats, ratio = None, None, None
+    if solution.converged and settings.compaction is not None:
+        begin("compact")
+        t = time.perf_counter()
+        pressed, pressed_mould, curve = compact(ms, textile, solution, settings.compaction, _fractions(textile),
+                                                settings.plate, settings.solver, loads)
+        if pressed is not None:
+            solution, mould = pressed, pressed_mould
+            flats, ratio = _flats(ms, solution, textile), _volume_ratio(ms, solution)
+        times["compact"] = time.perf_counter() - t
     corrected = None
     if solution.converged:
         begin("correct")
         t = time.perf_counter()
         corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
-                                      settings.correction.section_points, split)
+                                      settings.correction.section_points, split, flats)
+        if flats is not None:  # the fibres the compaction counted go with the flattened yarns
+            corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
+                                                  zip(corrected.yarns, yarn_fibre_areas(textile))])
         times["correct"] = time.perf_counter() - t
     else:
         log.warning("solve: the contact iteration did not converge: %s", solution.reason)
     times["total"] = time.perf_counter() - start
-    result = Run(textile, settings, ms, solution, corrected, times, mould=mould if solution.converged else None)
+    result = Run(textile, settings, ms, solution, corrected, times, mould=mould if solution.converged else None,
+                 compaction=curve, flats=flats, volume_ratio=ratio)
     s = result.summary()
     log.info("solve: %d dofs, %d Newton steps, max penetration %.3e mm, max |w| %.4f mm, %s", s["dofs"],
              s["iterations"], s["max_penetration_nodal"], s["max_abs_w"],
@@ -242,3 +271,30 @@ def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None, at_most_in
     log.info("mould: the fabric came out %.4f mm thick, the mould is %.4f mm: solving again between its "
              "platens (z = %.4f, %.4f mm)", hi - lo, thickness, mid - thickness / 2, mid + thickness / 2)
     return Mould(mid - thickness / 2, mid + thickness / 2)
+
+
+def _fractions(textile: Textile) -> list[float]:
+    """Each yarn's relaxed intra-yarn fibre fraction: its fibres' cross-section over its mean section [-]."""
+    return [a / mean_section_area(y, textile.resolution) for a, y in zip(yarn_fibre_areas(textile), textile.yarns)]
+
+
+def _flats(ms: MidSurfaces, solution: Solution, textile: Textile) -> list:
+    """Per yarn (a plate each) its flattening for the correction: its initial mid-height z0 and dt / t."""
+    flats = []
+    for y, dt in zip(ms.yarns, solution.dt or []):
+        ratio = dolfinx.fem.Function(y.V, name="dt_over_t")
+        t = y.t.x.array  # 0 at a yarn's edges, where dt is 0 too (the packing constraint)
+        ratio.x.array[:] = np.divide(dt.x.array, t, out=np.zeros_like(t), where=t > 0)
+        flats.append(Flat(y.z0, ratio, textile.cell))
+    return flats
+
+
+def _volume_ratio(ms: MidSurfaces, solution: Solution) -> list[float]:
+    """Per yarn (a plate each) its volume after the compaction over before, int (t + dt) / int t [-]."""
+    comm = ms.V.mesh.comm
+    ratio = []
+    for y, dt in zip(ms.yarns, solution.dt or []):
+        before, after = (comm.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(f * y.dx)), op=MPI.SUM)
+                         for f in (y.t, y.t + dt))
+        ratio.append(after / before)
+    return ratio

@@ -16,6 +16,11 @@ yarn surfaces) and compared with the initial one. A run passes when
   thick, a volume the sections' areas count and space does not) by at most `fold` of its volume
   more than in the input;
 - no section polygon crosses itself.
+Where the fabric was pressed and its yarns flattened (compaction.py), a yarn's volume per length is
+held to the change its plate's volume made, int (t + dt) / int t (the fibres are kept; the volume
+they fill is the law's), a section's area is not compared station by station (the sections flatten
+by the pressure where they are, which the input's sections do not say), no yarn may hold more
+fibre than the maximum packing, and a compaction that stopped short of its target fails.
 `assess` returns the metrics before and after with a `verdict`: passed, the failures (each with its
 numbers and the worst place), and the tolerances used.
 """
@@ -193,7 +198,21 @@ def _areas(polys: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
 
 
-def _surface_checks(initial: Textile, corrected: Textile, tol: Tolerances, out: dict, verdict: dict) -> None:
+def _compaction_checks(run, after: dict, out: dict, verdict: dict) -> None:
+    """A compaction that stopped short of its target, and yarns packed beyond the law's maximum."""
+    curve = run.compaction
+    if curve.reason is not None:
+        verdict["failures"].append({"check": "compaction", "message": f"the compaction stopped short: {curve.reason}"})
+    phi_max = run.settings.compaction.phi_max
+    densest = max(after["yarn_vf"], default=0.0)
+    if densest > phi_max:
+        verdict["failures"].append({"check": "packing", "value": densest, "limit": phi_max,
+                                    "message": f"a corrected yarn holds a fibre fraction of {densest:.3f}, beyond the "
+                                               f"maximum packing {phi_max:.4g}"})
+
+
+def _surface_checks(initial: Textile, corrected: Textile, tol: Tolerances, out: dict, verdict: dict,
+                    expected: np.ndarray) -> None:
     """Every yarn's volume per length from its own surface, and its folds (tube()): the volume
     per length of the rays (above) counts a yarn's volume in the cell, which a fold-over hides
     (TexGen's orthogonal binders at seed 0.5 held 3.8 % less per length with every section's area
@@ -201,7 +220,7 @@ def _surface_checks(initial: Textile, corrected: Textile, tol: Tolerances, out: 
     names = [y.name for y in initial.yarns]
     tubes = [(tube(y0, initial.resolution), tube(y1, corrected.resolution))
              for y0, y1 in zip(initial.yarns, corrected.yarns)]
-    per_length = [t1.per_length / t0.per_length - 1 for t0, t1 in tubes]
+    per_length = [t1.per_length / t0.per_length / e - 1 for (t0, t1), e in zip(tubes, expected)]
     folded = [max(0.0, t1.folded / t1.volume - t0.folded / t0.volume) for t0, t1 in tubes]
     out["yarn_surface_volume_per_length_change"] = per_length
     out["yarn_folded_fraction"] = [t1.folded / t1.volume for _, t1 in tubes]
@@ -264,6 +283,11 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
     # corners are rebuilt, and the sections' areas are held instead)
     length = (1 + np.array(after["crimp"])) / (1 + np.array(before["crimp"]))
     per_length = np.where(v0 > 0, (1 + change) / length - 1, 0.0)
+    pressed = run.volume_ratio is not None  # yarns that flattened: their plates' volume changed so
+    expected = np.asarray(run.volume_ratio) if pressed else np.ones(len(v0))
+    if pressed:
+        out["yarn_volume_expected_change"] = (expected - 1).tolist()
+        per_length = np.where(v0 > 0, (1 + per_length) / expected - 1, 0.0)
     out["yarn_volume_per_length_change"] = per_length.tolist()
     held = np.array([initial.cell.periodic and not _has_legs(y) for y in initial.yarns])
     change_held = np.where(held, per_length, 0.0)
@@ -273,7 +297,9 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
                                     "yarn": k, "message": f"{names[k]} (yarn {k}) changed its volume per length by "
                                                           f"{change_held[k]:+.2%} (limit {tol.volume:.0%}; volume "
                                                           f"{change[k]:+.2%}, length {length[k] - 1:+.2%})"})
-    _surface_checks(initial, corrected, tol, out, verdict)
+    _surface_checks(initial, corrected, tol, out, verdict, expected)
+    if run.compaction is not None:
+        _compaction_checks(run, after, out, verdict)
     spacing = run.settings.correction.station_spacing(run.settings.mesh.seed)
     most = budgets(initial.yarns, spacing, run.settings.correction.section_points)
     area_change = []
@@ -288,7 +314,7 @@ def assess(run, tolerances: Tolerances = Tolerances()) -> dict:
                                         "message": f"{names[i]} (yarn {i}): {len(crossed)} section polygons cross "
                                                    f"themselves (first at station {int(crossed[0])})"})
         a0 = _areas(y0.section_points(stations(y0, spacing, most[i]), polys.shape[1]))
-        ratio = _areas(polys) / a0 - 1 if len(a0) == len(polys) else np.zeros(1)
+        ratio = _areas(polys) / a0 - 1 if len(a0) == len(polys) and not pressed else np.zeros(1)
         area_change.append(float(ratio[np.argmax(np.abs(ratio))]))
         if abs(area_change[-1]) > tol.section_area:
             verdict["failures"].append({"check": "section area", "yarn": i, "value": area_change[-1],

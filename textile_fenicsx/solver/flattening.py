@@ -29,6 +29,13 @@ from textile_fenicsx.solver.periodic import BOTTOM, TOP, Periodicity
 __all__ = ["Flattening", "PackingRows", "flattening_terms", "packing_rows", "thinnest_stack"]
 
 
+# A plate's thickness falls to 0 at the yarn's edges (the rays graze its section there), where the
+# law (W ~ t0^3 / t^2) is 0 / 0: the law reads the thickness as at least this part of the yarn's
+# largest. The packing constraint reads the true thickness, so such a node cannot thin below
+# phi0 / phi_max of it, and t0 + dt stays positive in the law
+THINNEST = 0.02
+
+
 @dataclass(frozen=True)
 class Flattening:
     """One yarn's compaction term: the scratch thickness change dt, the relaxed thickness t0 (the
@@ -62,7 +69,9 @@ def flattening_terms(ms: MidSurfaces, numbering: Periodicity, maps: list, compac
     for y, (bottom, top) in zip(ms.yarns, maps):
         msh = y.mesh
         dt = dolfinx.fem.Function(y.V, name="dt")
-        t0 = y.t.copy()
+        t0 = y.t.copy()  # the law's relaxed thickness: at least THINNEST of the yarn's largest
+        largest = msh.comm.allreduce(float(np.max(t0.x.array, initial=0.0)), op=MPI.MAX)
+        t0.x.array[:] = np.maximum(t0.x.array, THINNEST * largest)
         c = dolfinx.fem.Constant
         modulus, phi0 = c(msh, float(compaction.modulus)), c(msh, compaction.fraction(y.yarn))
         _, residual, jacobian = compaction_forms(dt, t0, modulus, phi0, y.dx)

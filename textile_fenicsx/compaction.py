@@ -1,0 +1,151 @@
+"""Compaction (DESIGN.md 5a): the relaxed fabric pressed between platens to a thickness or a fibre
+volume fraction, its yarns flattening by their compaction law (solver/flattening.py).
+
+From the relaxed solve, the platens close in `steps` equal steps to the target thickness; each
+step is one solve of the yarns that flatten, started from the step before (its unknowns and
+forces: the interior point's warm start). The platens' pressure (their force over the cell) is
+recorded against the thickness and the fabric's fibre volume fraction: the compaction curve. A step
+that cannot be taken (the target beyond the maximum packing) ends the compaction with the reason;
+the curve up to it is kept.
+"""
+
+import logging
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+from mpi4py import MPI
+
+from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.fibres import DEFAULT_YARN_VF
+from textile_fenicsx.metrics import mean_section_area
+from textile_fenicsx.meshes.midsurface import MidSurfaces
+from textile_fenicsx.solver import Compaction, ContactProblem, Mould, PlateParameters, Solution, SolverOptions
+from textile_fenicsx.solver import solve_problem
+from textile_fenicsx.solver.flattening import thinnest_stack
+from textile_fenicsx.textile import Textile
+
+__all__ = ["CompactionCurve", "CompactionTarget", "compact", "fibre_volume"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CompactionTarget:
+    """How far to press the fabric. modulus: the yarns' Van Wyk constant k E_f [N/mm^2 = MPa];
+    thickness: the platens' final distance [mm], or vf: the fabric's fibre volume fraction at the
+    end [-] (one of the two); phi_max: the maximum packing [-]; steps: the platens' steps [-]."""
+
+    modulus: float
+    thickness: float | None = None
+    vf: float | None = None
+    phi_max: float = Compaction.__dataclass_fields__["phi_max"].default
+    steps: int = 4
+
+    def __post_init__(self):
+        check_positive("compaction modulus", self.modulus)
+        if (self.thickness is None) == (self.vf is None):
+            raise TextileError("compaction: give the mould's thickness or the fibre volume fraction, one of the two")
+        if self.thickness is not None:
+            check_positive("compaction thickness", self.thickness)
+        if self.vf is not None and not 0 < self.vf < self.phi_max:
+            raise TextileError(f"compaction: the fibre volume fraction must lie between 0 and the maximum packing "
+                               f"{self.phi_max:.4g}, got {self.vf:g}")
+        if not (isinstance(self.steps, int) and 1 <= self.steps <= 100):
+            raise TextileError(f"compaction steps must be a whole number from 1 to 100, got {self.steps!r}")
+
+
+@dataclass
+class CompactionCurve:
+    """The platens' pressure against the fabric's thickness: one point per step, the relaxed
+    fabric first (pressure 0). thickness [mm], vf [-], pressure [N/mm^2 = MPa], the densest
+    yarn's fibre fraction [-], Newton steps [-]; reason: why it ended early (None: it reached
+    the target)."""
+
+    thickness: list = field(default_factory=list)
+    vf: list = field(default_factory=list)
+    pressure: list = field(default_factory=list)
+    densest: list = field(default_factory=list)
+    iterations: list = field(default_factory=list)
+    target: float = 0.0
+    fibre_volume: float = 0.0
+    reason: str | None = None
+
+    def add(self, thickness: float, pressure: float, densest: float, iterations: int, area: float) -> None:
+        self.thickness.append(thickness)
+        self.vf.append(self.fibre_volume / (area * thickness))
+        self.pressure.append(pressure)
+        self.densest.append(densest)
+        self.iterations.append(iterations)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def yarn_fibre_areas(textile: Textile) -> list[float]:
+    """Each yarn's fibre cross-section [mm^2]: its fibre data's, or DEFAULT_YARN_VF of its mean section."""
+    return [(y.fibres.fibre_area() if y.fibres is not None else None)
+            or DEFAULT_YARN_VF * mean_section_area(y, textile.resolution) for y in textile.yarns]
+
+
+def fibre_volume(textile: Textile) -> float:
+    """The fibres' volume in the cell [mm^3]: each yarn's fibre cross-section times its length."""
+    return float(sum(a * y.length() for a, y in zip(yarn_fibre_areas(textile), textile.yarns)))
+
+
+def _extent(ms: MidSurfaces, w: list, dt: list | None) -> tuple[float, float]:
+    """The lowest bottom and highest top of the plates at their nodes [mm]."""
+    lo, hi = np.inf, -np.inf
+    for k, y in enumerate(ms.yarns):
+        z = y.z0.x.array + w[k].x.array
+        t = y.t.x.array + (0.0 if dt is None else dt[k].x.array)
+        if len(z):
+            lo, hi = min(lo, float(np.min(z - t / 2))), max(hi, float(np.max(z + t / 2)))
+    comm = ms.V.mesh.comm
+    return comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)
+
+
+def _densest(ms: MidSurfaces, law: Compaction, dt: list) -> float:
+    """The largest intra-yarn fibre fraction at a node, phi0 t0 / t [-]."""
+    local = max([float(np.max(law.fraction(y.yarn) * y.t.x.array / (y.t.x.array + d.x.array)))
+                 for y, d in zip(ms.yarns, dt) if len(d.x.array)] or [0.0])
+    return ms.V.mesh.comm.allreduce(local, op=MPI.MAX)
+
+
+def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: CompactionTarget,
+            phi0: list[float], plate: PlateParameters, options: SolverOptions, loads: dict):
+    """Press the relaxed fabric (its solution `relaxed`, rigid yarns) to the target. Returns the last
+    solution that converged (its w and dt), its mould, and the curve (collective)."""
+    law = Compaction(target.modulus, tuple(phi0), target.phi_max)
+    area = textile.cell.area
+    curve = CompactionCurve(fibre_volume=fibre_volume(textile))
+    lo, hi = _extent(ms, relaxed.w, None)
+    relaxed_thickness = hi - lo
+    curve.target = target.thickness if target.thickness is not None else curve.fibre_volume / (area * target.vf)
+    curve.add(relaxed_thickness, 0.0, max(phi0), 0, area)
+    least, (x, y) = thinnest_stack(ms, law)
+    log.info("compaction: from %.4f mm (Vf %.3f) to %.4f mm (Vf %.3f) in %d steps; packed to %.4g the yarns at "
+             "(%.3f, %.3f) mm are %.4f mm thick", relaxed_thickness, curve.vf[0], curve.target,
+             curve.fibre_volume / (area * curve.target), target.steps, target.phi_max, x, y, least)
+    if curve.target >= relaxed_thickness:
+        curve.reason = (f"the target ({curve.target:.4g} mm) is not thinner than the relaxed fabric "
+                        f"({relaxed_thickness:.4g} mm): nothing to press")
+        return None, None, curve
+    mid = (lo + hi) / 2
+    start, solution, mould = relaxed, None, None
+    for k in range(1, target.steps + 1):
+        h = relaxed_thickness + (curve.target - relaxed_thickness) * k / target.steps
+        step_mould = Mould(mid - h / 2, mid + h / 2)
+        problem = ContactProblem(ms, plate, options, loads=loads, mould=step_mould, compaction=law)
+        if start is relaxed:  # one surface of unknowns -> two
+            start = replace(relaxed, unknowns=(problem.numbering.local_surfaces(relaxed.unknowns[0]),
+                                               relaxed.unknowns[1]))
+        step = solve_problem(problem, start=start)
+        if not step.converged:
+            curve.reason = f"step {k} of {target.steps} ({h:.4g} mm): {step.reason}"
+            log.warning("compaction: %s", curve.reason)
+            break
+        solution, mould, start = step, step_mould, step
+        curve.add(h, float(step.pressure), _densest(ms, law, step.dt), step.iterations, area)
+        log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps", k,
+                 h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
+    return solution, mould, curve
