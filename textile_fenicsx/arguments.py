@@ -174,6 +174,17 @@ def _solve_command(subparsers: Subparsers) -> None:
                    help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
                    "the thickness a 3D weave is woven to (TexGen's FabricThickness), none for other fabrics")
+    p.add_argument("--compaction", type=float, metavar="K",
+                   help="press the relaxed fabric further, its yarns flattening by Van Wyk's law p = K (phi^3 - "
+                   "phi0^3), K = k E_f [MPa]: to --mould T (now also below the relaxed stack) or to --vf V "
+                   "(README, Compaction); writes compaction.json and compaction.png")
+    p.add_argument("--vf", type=float, metavar="V",
+                   help="with --compaction: press to the fibre volume fraction V [-] (the fibres' volume from the "
+                   "model's fibre data, or a yarn fibre fraction of 0.65 where it has none)")
+    p.add_argument("--compaction-steps", type=int, default=4, metavar="N",
+                   help="with --compaction: the platens close in N equal steps, one point of the curve each (4)")
+    p.add_argument("--max-packing", type=float, default=0.9069, metavar="PHI",
+                   help="with --compaction: the largest fibre fraction a yarn may reach [-] (0.9069, hexagonal)")
     p.set_defaults(run=commands.solve)
 
 

@@ -166,6 +166,24 @@ def load_input(text: str):
     return load_model(text)  # checked against the size bounds by the readers
 
 
+def _compaction(args) -> dict:
+    """The Settings' mould and compaction from --mould, --compaction, --vf (checked: exit 2)."""
+    from textile_fenicsx.compaction import CompactionTarget
+
+    if args.compaction is None:
+        if args.vf is not None:
+            raise TextileError("--vf needs --compaction K (the yarns' compaction law) to press the fabric to a fibre "
+                               "volume fraction")
+        return {"mould": args.mould}
+    thickness = args.mould if isinstance(args.mould, float) else None
+    if thickness is None and args.vf is None:
+        raise TextileError("--compaction needs a target: --mould T (a thickness in mm) or --vf V")
+    if thickness is not None and args.vf is not None:
+        raise TextileError("--compaction takes one target: --mould T or --vf V, not both")
+    return {"mould": None, "compaction": CompactionTarget(args.compaction, thickness, args.vf, args.max_packing,
+                                                          args.compaction_steps)}
+
+
 def solve(args) -> int:
     from mpi4py import MPI
 
@@ -182,7 +200,7 @@ def solve(args) -> int:
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
                              penetration_tol=args.penetration_tol, out_of_core=args.out_of_core,
                              min_gap=args.min_gap),
-        correction=CorrectionOptions(), mould=args.mould)
+        correction=CorrectionOptions(), **_compaction(args))
     _check_repeat(args)
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     t = time.perf_counter()

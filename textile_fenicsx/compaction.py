@@ -149,3 +149,28 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
         log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps", k,
                  h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
     return solution, mould, curve
+
+
+def plot_curve(curve: CompactionCurve, path, title: str) -> None:
+    """compaction.png: the platens' pressure against the fabric's thickness and its fibre volume
+    fraction (matplotlib; rank 0)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    for ax, x, label in ((left, curve.thickness, "fabric thickness [mm]"),
+                         (right, curve.vf, "fibre volume fraction Vf [-]")):
+        ax.plot(x, curve.pressure, "o-", color="tab:blue", label="platen pressure (this model)")
+        ax.set_xlabel(label)
+        ax.set_ylabel("pressure [MPa]")
+        ax.grid(True, alpha=0.3)
+    left.axvline(curve.target, color="tab:red", ls="--", label=f"target {curve.target:.3f} mm")
+    left.invert_xaxis()  # pressing goes to the right
+    right.plot(curve.vf, curve.densest, "s--", color="tab:green", label="densest yarn's fibre fraction [-]")
+    for ax in (left, right):
+        ax.legend(loc="upper left", fontsize=8)
+    fig.suptitle(title + ("" if curve.reason is None else " (stopped short)"))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -80,17 +80,20 @@ class _Whole:
 
 
 class Flat:
-    """A yarn plate's flattening (compaction.py): a point of the yarn at height z over (x, y) moves by
-    (z - z0) dt / t there besides w, so the section thins about the plate's mid-surface as its
-    thickness t does (DESIGN.md 7)."""
+    """A yarn plate's flattening (compaction.py): a point of a section moves, besides w, toward
+    the section's centre by its height above it times dt / t at its own in-plane point, so the
+    section thins as the plate's thickness t does (DESIGN.md 7). The centre, not the plate's
+    mid-height z0 there: z0 extrapolated to the section points just outside the footprint (rays
+    graze the yarn's edge) moved a plain weave's weft edges 0.02 mm into the warps. dt / t is read
+    within the range of its nodal values, `bounds`: its interpolant overshoots near the edges."""
 
-    def __init__(self, z0, ratio, cell: Cell):
-        self.z0, self.ratio, self.cell = z0, ratio, cell  # Functions: mid-height z0 and dt / t
+    def __init__(self, ratio, bounds: tuple[float, float], cell: Cell):
+        self.ratio, self.bounds, self.cell = ratio, bounds, cell  # ratio: dt / t (a Function)
 
-    def shift(self, xy: np.ndarray, z: np.ndarray) -> np.ndarray:
-        flat = _wrap(xy.reshape(-1, 2), self.cell)
-        z0, ratio = (evaluate(f, flat, extrapolate=True).reshape(z.shape) for f in (self.z0, self.ratio))
-        return (z - z0) * ratio
+    def shift(self, xy: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """The flattening's move of section points at in-plane xy, `height` above their centre [mm]."""
+        ratio = evaluate(self.ratio, _wrap(xy.reshape(-1, 2), self.cell), extrapolate=True).reshape(height.shape)
+        return height * np.clip(ratio, *self.bounds)
 
 
 # A leg's change of length goes where it is vertical: its height is weighted by the vertical part
@@ -209,10 +212,9 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     pts_xy = (pos[:, None, :2] + u0[..., None] * side0[:, None, :2]
               + (v0 * fade[:, None])[..., None] * up0[:, None, :2])
     w_pts = w.points(s, pts_xy, w_centre)
-    if flat is not None:  # each point also moves toward the plate's mid-surface as the yarn thins
-        flat_pts = flat.shift(pts_xy, pos[:, None, 2] + v0 * up0[:, None, 2])
-        flat_centre = flat.shift(pos[:, :2], pos[:, 2])
-        w_pts, w_centre = w_pts + flat_pts, w_centre + flat_centre
+    if flat is not None:  # each point also moves toward the section's centre as the yarn thins
+        flat_pts = flat.shift(pts_xy, v0 * up0[:, None, 2])
+        w_pts = w_pts + flat_pts
     new_pos = pos + np.outer(w_centre, [0.0, 0.0, 1.0])
     if yarn.periodic:  # the last station repeats the first, shifted by the period
         new_pos[-1] = new_pos[0] + yarn.period
@@ -230,7 +232,7 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     # narrows; where it would shrink it thickens (widening would raise the thin flanks over the
     # neighbours, thickening spends the margin the exact contact keeps at the nodes)
     kept = _areas(u0, v0) if flat is None else \
-        _areas(u0, v0 + (flat_pts - flat_centre[:, None]) * up0[:, None, 2])  # the flattened section's
+        _areas(u0, v0 + flat_pts * up0[:, None, 2])  # the flattened section's
     ratio = (kept / _areas(u0, v_new))[:, None]
     u_new, v_new = u0 * np.minimum(1.0, ratio), v_new * np.maximum(1.0, ratio)
     new_pos, polys = _centred(probe, new_pos, np.stack((u_new, v_new), axis=-1), yarn.periodic)

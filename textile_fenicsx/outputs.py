@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 
 RESULT_NAMES = ("corrected.tg3", "corrected.json", "rejected.tg3", "rejected.json", "initial.json", "metrics.json",
                 "fields", "surfaces_before.vtu", "surfaces_before.stl", "surfaces_after.vtu", "surfaces_after.stl",
-                "view_before.png", "view_after.png", "cross_sections.png")
+                "view_before.png", "view_after.png", "cross_sections.png", "compaction.json", "compaction.png")
 FAILED_NAMES = ("FAILED", "log.json")
 
 
@@ -164,6 +164,11 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
             save_model(run.textile, tmp / "initial.json")
             if not passed:
                 _write_text(tmp / "FAILED", "\n".join(f["message"] for f in metrics["verdict"]["failures"]) + "\n")
+            if run.compaction is not None:
+                from textile_fenicsx.compaction import plot_curve
+
+                _write_text(tmp / "compaction.json", json.dumps(run.compaction.as_dict(), indent=1))
+                plot_curve(run.compaction, tmp / "compaction.png", f"{run.textile.name}: compaction")
         if fields:
             log.info("outputs: mid-surface fields")
             write_fields(run, tmp / "fields")

@@ -24,6 +24,7 @@ from textile_fenicsx.metrics import mean_section_area
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
 from textile_fenicsx.slopes import slope_thickness
+from textile_fenicsx.solver.flattening import THINNEST
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.textile import Textile
 
@@ -279,13 +280,19 @@ def _fractions(textile: Textile) -> list[float]:
 
 
 def _flats(ms: MidSurfaces, solution: Solution, textile: Textile) -> list:
-    """Per yarn (a plate each) its flattening for the correction: its initial mid-height z0 and dt / t."""
+    """Per yarn (a plate each) its flattening for the correction: dt / t and the range of its nodal values."""
     flats = []
     for y, dt in zip(ms.yarns, solution.dt or []):
         ratio = dolfinx.fem.Function(y.V, name="dt_over_t")
-        t = y.t.x.array  # 0 at a yarn's edges, where dt is 0 too (the packing constraint)
-        ratio.x.array[:] = np.divide(dt.x.array, t, out=np.zeros_like(t), where=t > 0)
-        flats.append(Flat(y.z0, ratio, textile.cell))
+        # over the law's own relaxed thickness (solver/flattening.py: at least THINNEST of the largest;
+        # a yarn's edge nodes, t ~ 4e-6 mm, moved 1.6e-5 mm apart by the spring and read 3.9)
+        comm, t = y.mesh.comm, y.t.x.array
+        largest = comm.allreduce(float(np.max(t, initial=0.0)), op=MPI.MAX)
+        ratio.x.array[:] = dt.x.array / np.maximum(t, THINNEST * largest)
+        r = ratio.x.array
+        bounds = (comm.allreduce(float(np.min(r, initial=0.0)), op=MPI.MIN),
+                  comm.allreduce(float(np.max(r, initial=0.0)), op=MPI.MAX))
+        flats.append(Flat(ratio, bounds, textile.cell))
     return flats
 
 
