@@ -83,3 +83,88 @@ def test_bad_compaction_parameters_are_named():
         Compaction(-1.0)
     with pytest.raises(TextileError, match="relaxed fibre fraction"):
         Compaction(10.0, phi0=0.95)
+
+
+# ---- the compaction stage (compaction.py) on woven fabrics ----
+
+from textile_fenicsx.compaction import CompactionTarget  # noqa: E402
+from textile_fenicsx.meshes.projected import MeshOptions  # noqa: E402
+from textile_fenicsx.pipeline import Settings, run  # noqa: E402
+from textile_fenicsx.weaves import build  # noqa: E402
+
+
+def pressed(name: str, seed: float, comm=MPI.COMM_WORLD, **target):
+    return run(build(name), Settings(MeshOptions(seed), compaction=CompactionTarget(MODULUS, **target)), comm=comm)
+
+
+@pytest.mark.mpi
+def test_a_plain_weave_pressed_to_vf_half_passes_its_check_with_its_fibres_kept():
+    r = pressed("plain", 0.5, vf=0.5)
+    curve, m = r.compaction, r.metrics
+    assert curve.reason is None and r.verdict["passed"], r.verdict["failures"]
+    # the platens reach the target: Vf = fibre volume / (cell area x mould) = 0.5 at the last step
+    assert curve.vf[-1] == pytest.approx(0.5, rel=1e-12)
+    assert r.mould.thickness == pytest.approx(curve.thickness[-1], rel=1e-12)
+    # the corrected model, measured by rays, is as thick as the mould to the sections' sampling
+    # between the plate's nodes (less than 2 % here), so its Vf is 0.5 to that
+    assert m["after"]["vf"] == pytest.approx(0.5, rel=0.02)
+    # each yarn's volume follows its plate's (its fibres fill what the law leaves them): to 1 %
+    expected = np.array(m["yarn_volume_expected_change"])
+    assert np.all(expected < 0)
+    assert np.max(np.abs(m["yarn_volume_per_length_change"])) <= 0.01
+    assert np.max(np.abs(m["yarn_surface_volume_per_length_change"])) <= 0.01
+    # no yarn beyond the maximum packing, at a node or on average
+    assert max(curve.densest) <= 0.9069 and max(m["after"]["yarn_vf"]) <= 0.9069
+    assert min(m["after"]["yarn_vf"]) > 0.65  # all flattened: denser than relaxed
+    # the platens' pressure is the derivative of the least energy in the thickness, which is
+    # convex: it grows as the platens close
+    assert np.all(np.diff(curve.pressure) > 0), curve.pressure
+
+
+@pytest.mark.mpi
+def test_the_satin_pressed_to_six_tenths_of_its_thickness_is_the_same_on_two_ranks():
+    # the issue's case: the 4-harness satin pressed to 0.6 of its relaxed thickness (0.868 mm at
+    # seed 0.5); the check passes; serial and 2 ranks agree to 1e-8 mm in w and dt
+    from test_solver import _max_difference
+
+    alone = pressed("crowfoot_satin", 0.5, MPI.COMM_SELF, thickness=0.6 * 0.8681)
+    shared = pressed("crowfoot_satin", 0.5, thickness=0.6 * 0.8681)
+    for r in (alone, shared):
+        assert r.compaction.reason is None and r.verdict["passed"], r.verdict["failures"]
+        assert r.compaction.thickness[0] == pytest.approx(0.8681, abs=1e-4)  # the relaxed fabric
+        assert 0.4 < r.metrics["after"]["vf"] < 0.9069
+    assert alone.solution.iterations == shared.solution.iterations
+    assert _max_difference(alone, shared) < 1e-8
+    assert _max_difference(alone, shared, "dt") < 1e-8
+    assert shared.compaction.pressure == pytest.approx(alone.compaction.pressure, rel=1e-6)
+
+
+@pytest.mark.mpi
+def test_a_target_beyond_the_maximum_packing_keeps_the_curve_and_names_the_limit():
+    # packed to 0.9069 the plain weave's stacked yarns are 0.429 mm thick: Vf 0.65 at most
+    r = pressed("plain", 0.5, vf=0.7, steps=2)
+    curve = r.compaction
+    assert len(curve.thickness) == 2  # the relaxed fabric and the first step
+    assert "beyond the maximum packing 0.9069" in curve.reason and "0.429" in curve.reason
+    assert not r.verdict["passed"]
+    assert any("the compaction stopped short" in f["message"] for f in r.verdict["failures"])
+
+
+@pytest.mark.serial
+def test_compaction_input_errors_exit_2(tmp_path):
+    import subprocess
+    import sys
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "textile_fenicsx", "solve", *map(str, args), "--no-figures",
+                               "--out", tmp_path / "out"], capture_output=True, text=True, timeout=300)
+
+    bad = cli("plain", "--vf", 0.5)
+    assert bad.returncode == 2 and "--vf needs --compaction K" in bad.stderr
+    bad = cli("plain", "--compaction", 50)
+    assert bad.returncode == 2 and "--compaction needs a target" in bad.stderr
+    bad = cli("plain", "--compaction", 50, "--vf", 0.95)
+    assert bad.returncode == 2 and "between 0 and the maximum packing" in bad.stderr
+    bad = cli("orthogonal", "--compaction", 50, "--vf", 0.5)
+    assert bad.returncode == 2 and "binder legs through the thickness is not modelled" in bad.stderr
+    assert not (tmp_path / "out").exists()

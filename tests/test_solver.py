@@ -223,12 +223,13 @@ def test_penalty_geometry_is_insensitive_to_ten_times_ec():
     assert largest(sols[1e5], sols[1e6]) < largest(sols[1e4], sols[1e5]) < largest(sols[1e3], sols[1e4])
 
 
-def _max_difference(a, b) -> float:
-    """Largest difference of two runs' displacements at the same points (a's dof points) [mm]."""
+def _max_difference(a, b, field: str = "w") -> float:
+    """Largest difference of two runs' displacements (or thickness changes: field "dt") at the same
+    points (a's dof points) [mm]."""
     from textile_fenicsx.fields import evaluate
 
     worst = 0.0
-    for wa, wb, ya in zip(a.solution.w, b.solution.w, a.midsurfaces.yarns):
+    for wa, wb, ya in zip(getattr(a.solution, field), getattr(b.solution, field), a.midsurfaces.yarns):
         xy = ya.V.tabulate_dof_coordinates()[:, :2]  # a is serial (COMM_SELF): every rank has all
         xy = MPI.COMM_WORLD.bcast(xy, root=0)
         worst = max(worst, float(np.max(np.abs(evaluate(wb, xy) - MPI.COMM_WORLD.bcast(wa.x.array, root=0)))))

@@ -134,6 +134,13 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
     start, solution, mould = relaxed, None, None
     for k in range(1, target.steps + 1):
         h = relaxed_thickness + (curve.target - relaxed_thickness) * k / target.steps
+        if h < least:  # no solve can take it: the nodes' constraints cannot all hold
+            curve.reason = (f"step {k} of {target.steps} ({h:.4g} mm, Vf {curve.fibre_volume / (area * h):.3f}) is "
+                            f"beyond the maximum packing {target.phi_max:.4g} of the compaction law: packed to it, the "
+                            f"yarns stacked at ({x:.3f}, {y:.3f}) mm are still {least:.4g} mm thick (give a thicker "
+                            "mould or a lower fibre volume fraction)")
+            log.warning("compaction: %s", curve.reason)
+            break
         step_mould = Mould(mid - h / 2, mid + h / 2)
         problem = ContactProblem(ms, plate, options, loads=loads, mould=step_mould, compaction=law)
         if start is relaxed:  # one surface of unknowns -> two
