@@ -5,7 +5,7 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer bench-volume sweep sweep-volume clean
+.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer bench-volume sweep sweep-volume sweep-compaction clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -22,6 +22,7 @@ help:
 	@echo "make bench-volume volume-mesh + homogenise of the corrected satin4 (voxel and tet, 1 and 2 ranks): seconds,"
 	@echo "                  dofs, peak memory; table + $(OUT)/volume_bench.json"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
+	@echo "make sweep-compaction  every 2D fabric of the sweep solved, then pressed to Vf 0.5 (K 50 MPa)"
 	@echo "make sweep-volume the volume stage on the same family: voxel of each input, solve --volume-mesh tet,"
 	@echo "                  voxel of the corrected model, homogenise (~3 h); table + $(OUT)/volume_sweep.json"
 	@echo "make docker-test  build the Dockerfile in a Docker engine of its own, run the demos (satin; orthogonal on"
@@ -37,7 +38,8 @@ demo:
 	$(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/satin_4hs python3 demos/satin_4hs.py
 
 demos:
-	for d in satin_4hs orthogonal_3d mesh_convergence parameter_study plate_c0ip coupon_edges homogenise_satin; do \
+	for d in satin_4hs orthogonal_3d mesh_convergence parameter_study plate_c0ip coupon_edges homogenise_satin \
+	  compaction_satin; do \
 	  $(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/$$d python3 demos/$$d.py || exit 1; done
 
 test: test-serial test-mpi
@@ -59,6 +61,7 @@ bench:
 	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
 	$(ENV) env TEXTILE_FENICSX_TEXGEN_PYTHON=$$texgen python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
 	$(ENV) python3 bench/volume_bench.py --out $(OUT)/volume_bench.json $(if $(QUICK),--kinds voxel --ranks 1)
+	$(ENV) python3 bench/compaction_bench.py --out $(OUT)/compaction_bench.json $(if $(QUICK),--seeds 0.5)
 
 bench-outer:
 	$(ENV) python3 bench/outer_solve.py
@@ -68,6 +71,9 @@ bench-volume:
 
 sweep:
 	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json
+
+sweep-compaction:
+	$(ENV) python3 bench/sweep.py --compaction 50 --vf 0.5 --out $(OUT)/compaction_sweep.json
 
 sweep-volume:
 	$(ENV) python3 bench/volume_sweep.py --out $(OUT)/volume_sweep.json

@@ -10,6 +10,10 @@ volumes and section areas within 1 %, no crossed section). tests/test_sweep.py r
 slow); `make sweep` prints the table:
 
     python3 bench/sweep.py [--seed 0.5] [--only NAME ...] [--out output/sweep.json]
+
+With --compaction K --vf V (`make sweep-compaction`: K 50 MPa, Vf 0.5) every 2D fabric is solved
+and then pressed to Vf V (README, Compaction); the 3D weaves are left out (their binder legs are
+not plates: compaction refuses them).
 """
 
 import argparse
@@ -33,15 +37,20 @@ BUILT = {
 }
 
 
-def cases() -> list[str]:
-    """Every case name: the fabric files' stems, then our builders'."""
-    return sorted(p.stem for p in FABRICS.glob("*.tg3")) + sorted(BUILT)
+THREE_D = ("ortho", "l2l", "angleinterlock", "ours_orthogonal")
 
 
-def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1, keep: Path | None = None) -> dict:
+def cases(two_d: bool = False) -> list[str]:
+    """Every case name: the fabric files' stems, then our builders' (two_d: the 2D weaves only)."""
+    names = sorted(p.stem for p in FABRICS.glob("*.tg3")) + sorted(BUILT)
+    return [n for n in names if not n.startswith(THREE_D)] if two_d else names
+
+
+def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1, keep: Path | None = None,
+             extra: tuple[str, ...] = ()) -> dict:
     """Solve one case with the default command in a fresh process (under mpirun -n ranks if > 1);
     its record. keep: a folder to which the run's model files and metrics.json are copied (as
-    keep/name/)."""
+    keep/name/). extra: more arguments of the solve (the compaction's)."""
     with tempfile.TemporaryDirectory(prefix=f"sweep-{name[:30]}-") as tmp:
         tmp = Path(tmp)
         if name in BUILT:
@@ -56,7 +65,8 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
         start = time.perf_counter()
         mpi = ["mpirun", "-n", str(ranks)] if ranks > 1 else []
         proc = subprocess.run([*mpi, sys.executable, "-m", "textile_fenicsx", "solve", str(model), "--seed", str(seed),
-                               "--no-figures", "--out", str(out)], capture_output=True, text=True, timeout=timeout)
+                               "--no-figures", "--out", str(out), *extra], capture_output=True, text=True,
+                              timeout=timeout)
         record = {"case": name, "seed": seed, "ranks": ranks, "exit": proc.returncode,
                   "seconds": time.perf_counter() - start}
         metrics = out / "metrics.json"
@@ -67,8 +77,12 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
                           overlap_before=before["volume"], overlap_after=after["volume"],
                           depth_before=before["max_depth"], depth_after=after["max_depth"],
                           thickness_before=m["thickness"]["before"], thickness_after=m["thickness"]["after"],
-                          volume_change=max(map(abs, m["yarn_volume_change"])),
+                          volume_change=max(map(abs, m["yarn_volume_change"])), vf=m["vf"],
                           failures=[f["message"] for f in m["verdict"]["failures"]])
+        if (out / "compaction.json").is_file():
+            curve = json.loads((out / "compaction.json").read_text())
+            record.update(pressure=curve["pressure"][-1], relaxed=curve["thickness"][0], pressed=curve["thickness"][-1],
+                          densest=max(curve["densest"]), compaction_reason=curve["reason"])
         if proc.returncode != 0:
             record["error"] = proc.stderr.strip().splitlines()[-1:] if proc.stderr.strip() else []
         if keep is not None and out.is_dir():
@@ -99,6 +113,20 @@ def table(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def compaction_table(records: list[dict]) -> str:
+    """The compaction's numbers per case: relaxed and pressed thickness, Vf, pressure, densest yarn."""
+    lines = ["| case | exit | relaxed mm | pressed mm | Vf after (rays) | pressure MPa | densest phi | stopped |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        if "pressure" in r:
+            vf = r["vf"]["after"] if r.get("vf") and r["vf"]["after"] is not None else float("nan")
+            lines.append(f"| {r['case']} | {r['exit']} | {r['relaxed']:.3f} | {r['pressed']:.3f} | {vf:.3f} | "
+                         f"{r['pressure']:.3g} | {r['densest']:.3f} | {(r['compaction_reason'] or '')[:80]} |")
+        else:
+            lines.append(f"| {r['case']} | {r['exit']} | | | | | | {' '.join(r.get('error', []))[:80]} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seed", type=float, default=0.5)
@@ -106,17 +134,22 @@ def main() -> None:
     parser.add_argument("--ranks", type=int, default=1, help="MPI ranks per solve (mpirun -n)")
     parser.add_argument("--out", type=Path, default=REPO / "output" / "sweep.json")
     parser.add_argument("--keep", type=Path, help="copy each run's model files and metrics.json to KEEP/NAME/")
+    parser.add_argument("--compaction", type=float, metavar="K", help="press each 2D fabric (K: k E_f [MPa])")
+    parser.add_argument("--vf", type=float, default=0.5, help="with --compaction: the target Vf (0.5)")
     args = parser.parse_args()
+    extra = () if args.compaction is None else ("--compaction", str(args.compaction), "--vf", str(args.vf))
     records = []
-    for name in args.only or cases():
+    for name in args.only or cases(two_d=args.compaction is not None):
         print(f"sweep: {name}", file=sys.stderr, flush=True)
-        records.append(run_case(name, args.seed, ranks=args.ranks, keep=args.keep))
+        records.append(run_case(name, args.seed, ranks=args.ranks, keep=args.keep, extra=extra))
         r = records[-1]
         print(f"sweep: {name}: exit {r['exit']}" + (f", {r['failures']}" if r.get("failures") else "")
               + (f", {r['error']}" if r.get("error") and not r.get("failures") else ""), file=sys.stderr, flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"machine": os.uname().nodename, "records": records}, indent=1))
     print(table(records))
+    if args.compaction is not None:
+        print(compaction_table(records))
 
 
 if __name__ == "__main__":

@@ -205,14 +205,16 @@ MARGIN_POINTS = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6
                           [1 / 4, 0], [3 / 4, 0], [0, 1 / 4], [0, 3 / 4], [3 / 4, 1 / 4], [1 / 4, 3 / 4]])
 
 
-def _pair_gaps(ms: MidSurfaces, u: int, l: int, w=None) -> tuple[np.ndarray, np.ndarray]:
-    """The pair's nodal gap (bottom of u less top of l, with displacements w if given) on the
-    parent dofs of its cells [mm], and those dofs (c, 6)."""
+def _pair_gaps(ms: MidSurfaces, u: int, l: int, w=None, dt=None) -> tuple[np.ndarray, np.ndarray]:
+    """The pair's nodal gap (bottom of u less top of l, with displacements w and thickness
+    changes dt if given) on the parent dofs of its cells [mm], and those dofs (c, 6)."""
     yu, yl = ms.yarns[u], ms.yarns[l]
     du, dl = ms.contact_dofs[(u, l)][:, 0], ms.contact_dofs[(u, l)][:, 1]
     lower, upper = yl.z0.x.array[dl] + yl.t.x.array[dl] / 2, yu.z0.x.array[du] - yu.t.x.array[du] / 2
     if w is not None:
         upper, lower = upper + w[u].x.array[du], lower + w[l].x.array[dl]
+    if dt is not None:
+        upper, lower = upper - dt[u].x.array[du] / 2, lower + dt[l].x.array[dl] / 2
     g = np.zeros(ms.V.dofmap.index_map.size_local + ms.V.dofmap.index_map.num_ghosts)
     g[yu.to_parent[du]] = upper - lower
     return g, ms.V.dofmap.list[ms.contact[(u, l)]]
@@ -289,17 +291,17 @@ def _gap_margins(ms: MidSurfaces) -> None:
     _add_margins(ms, shortfall)
 
 
-def widen_margins(ms: MidSurfaces, w: list) -> float:
+def widen_margins(ms: MidSurfaces, w: list, dt: list | None = None) -> float:
     """After a solve with displacements w (per yarn): where a pair's P2 gap field is negative
     inside a cell (a quadratic >= 0 at its nodes can dip below 0 between them), the cell's nodes
     get that depth as more margin [mm], so that the next solve keeps the field >= 0 between the
     nodes too (nodal constraints alone left 8e-5 mm^3 of the gap field negative on the orthogonal
     weave ortho_w3f4, and 1.2 % of its overlap in the corrected model). Returns the largest added
-    (collective)."""
+    (collective). dt: the yarns' thickness changes, where they flattened."""
     basis = _margin_points()
 
     def dip(u, l):
-        g, dofs = _pair_gaps(ms, u, l, w)
+        g, dofs = _pair_gaps(ms, u, l, w, dt)
         return -(g[dofs] @ basis.T).min(axis=1).clip(max=0.0)
 
     return _add_margins(ms, dip)

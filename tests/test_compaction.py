@@ -168,3 +168,35 @@ def test_compaction_input_errors_exit_2(tmp_path):
     bad = cli("orthogonal", "--compaction", 50, "--vf", 0.5)
     assert bad.returncode == 2 and "binder legs through the thickness is not modelled" in bad.stderr
     assert not (tmp_path / "out").exists()
+
+
+# ---- plies (plies.py) ----
+
+
+@pytest.mark.mpi
+def test_two_plies_nest_when_moved_by_half_a_spacing_and_not_in_register():
+    from textile_fenicsx.plies import stack
+
+    plain = build("plain")  # spacing 2 mm
+    single = run(plain, Settings(MeshOptions(0.5))).metrics["after"]["thickness"]
+    register, nested = (run(stack(plain, 2, offsets), Settings(MeshOptions(0.5))) for offsets in
+                        ([(0, 0), (0, 0)], [(0, 0), (1.0, 1.0)]))
+    for r in (register, nested):
+        assert r.verdict["passed"], r.verdict["failures"]
+    # in register the second ply's crowns rest on the first's: each ply as thick as one alone
+    # (the rays' thickness of the corrected models: 1 %)
+    assert register.metrics["after"]["thickness"] / 2 == pytest.approx(single, rel=0.01)
+    # moved by half a spacing the crowns fall into the other ply's valleys: thinner by more than
+    # the tolerance
+    assert nested.metrics["after"]["thickness"] < 0.97 * register.metrics["after"]["thickness"]
+
+
+@pytest.mark.mpi
+def test_a_nested_stack_is_pressed_as_one_fabric():
+    from textile_fenicsx.plies import stack
+
+    r = run(stack(build("plain"), 2, [(0, 0), (1.0, 1.0)]),
+            Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.5, steps=3)))
+    assert r.compaction.reason is None and r.verdict["passed"], r.verdict["failures"]
+    assert r.metrics["after"]["vf"] == pytest.approx(0.5, rel=0.02)
+    assert np.all(np.diff(r.compaction.pressure) > 0)

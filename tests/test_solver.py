@@ -283,7 +283,7 @@ def test_every_yarn_dof_has_one_unknown_whatever_the_partition():
         images = sum(len(p) for p in ms.periodic)
         dofs = sum(y.V.dofmap.index_map.size_global for y in ms.yarns)
         assert problem.numbering.n == dofs - images
-        for R in problem.R:  # one 1 per row: every yarn dof has its unknown
+        for (R,) in problem.R:  # one 1 per row: every yarn dof has its unknown (one surface: rigid yarns)
             ones = R.createVecRight()
             ones.set(1.0)
             rows = R.createVecLeft()

@@ -174,6 +174,13 @@ def _solve_command(subparsers: Subparsers) -> None:
                    help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
                    "the thickness a 3D weave is woven to (TexGen's FabricThickness), none for other fabrics")
+    p.add_argument("--plies", type=int, default=1, metavar="N",
+                   help="stack N plies of the fabric in one cell, ply k moved by its offset in the plane and by k "
+                   "times the fabric's thickness up; they nest by the same contact solve (README, Compaction)")
+    p.add_argument("--ply-offsets", nargs="+", metavar="DX,DY",
+                   help="with --plies N: the N plies' in-plane offsets [mm] (default: random in the cell, "
+                   "--ply-seed; the first ply in place)")
+    p.add_argument("--ply-seed", type=int, default=0, metavar="S", help="with --plies: the random offsets' seed (0)")
     p.add_argument("--compaction", type=float, metavar="K",
                    help="press the relaxed fabric further, its yarns flattening by Van Wyk's law p = K (phi^3 - "
                    "phi0^3), K = k E_f [MPa]: to --mould T (now also below the relaxed stack) or to --vf V "

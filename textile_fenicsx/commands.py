@@ -204,7 +204,8 @@ def solve(args) -> int:
     _check_repeat(args)
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     t = time.perf_counter()
-    textile = _repeated(load_input(args.input), args, settings.mesh, comm.size, settings.solver.bytes_per_dof)
+    textile = _repeated(_stacked(load_input(args.input), args), args, settings.mesh, comm.size,
+                        settings.solver.bytes_per_dof)
     settings, volume = volume_commands.with_gap(settings, textile, volume, args.min_gap)
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
@@ -269,6 +270,22 @@ def _check_repeat(args) -> None:
         if n < 1:
             raise TextileError(f"coupon repeats {label} must be a whole number >= 1, got {n!r}")
         limits.check_count(f"coupon repeats {label} (--repeat)", n, 1, limits.MAX_REPEATS)
+
+
+def _stacked(textile, args):
+    """The model, or --plies N of it stacked with their offsets (given, or random with --ply-seed)."""
+    from textile_fenicsx.plies import random_offsets, stack
+
+    if args.plies == 1 and args.ply_offsets is None:
+        return textile
+    offsets = random_offsets(textile, args.plies, args.ply_seed)
+    if args.ply_offsets is not None:
+        try:
+            offsets = [tuple(float(v) for v in text.split(",")) for text in args.ply_offsets]  # type: ignore[misc]
+        except ValueError:
+            given = " ".join(args.ply_offsets)
+            raise TextileError(f"--ply-offsets: expected DX,DY pairs in mm, got {given!r}") from None
+    return stack(textile, args.plies, offsets)
 
 
 def _repeated(textile, args, mesh=None, ranks: int = 1, bytes_per_dof: float | None = None):

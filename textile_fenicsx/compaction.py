@@ -6,7 +6,8 @@ step is one solve of the yarns that flatten, started from the step before (its u
 forces: the interior point's warm start). The platens' pressure (their force over the cell) is
 recorded against the thickness and the fabric's fibre volume fraction: the compaction curve. A step
 that cannot be taken (the target beyond the maximum packing) ends the compaction with the reason;
-the curve up to it is kept.
+the curve up to it is kept. The last step is solved once more where its gap field dips below 0
+between the nodes, with margins that keep it >= 0 there (as the relaxed solve's second solve).
 """
 
 import logging
@@ -17,14 +18,23 @@ from mpi4py import MPI
 
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.fibres import DEFAULT_YARN_VF
+from textile_fenicsx.meshes.midsurface import MidSurfaces, widen_margins
 from textile_fenicsx.metrics import mean_section_area
-from textile_fenicsx.meshes.midsurface import MidSurfaces
-from textile_fenicsx.solver import Compaction, ContactProblem, Mould, PlateParameters, Solution, SolverOptions
-from textile_fenicsx.solver import solve_problem
+from textile_fenicsx.solver import (
+    Compaction,
+    ContactProblem,
+    Mould,
+    PlateParameters,
+    Solution,
+    SolverOptions,
+    solve_problem,
+)
 from textile_fenicsx.solver.flattening import thinnest_stack
 from textile_fenicsx.textile import Textile
 
 __all__ = ["CompactionCurve", "CompactionTarget", "compact", "fibre_volume"]
+
+HEXAGONAL = float(np.pi / (2 * np.sqrt(3)))  # the densest packing of equal circles [-]
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +48,7 @@ class CompactionTarget:
     modulus: float
     thickness: float | None = None
     vf: float | None = None
-    phi_max: float = Compaction.__dataclass_fields__["phi_max"].default
+    phi_max: float = HEXAGONAL
     steps: int = 4
 
     def __post_init__(self):
@@ -120,7 +130,11 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
     curve = CompactionCurve(fibre_volume=fibre_volume(textile))
     lo, hi = _extent(ms, relaxed.w, None)
     relaxed_thickness = hi - lo
-    curve.target = target.thickness if target.thickness is not None else curve.fibre_volume / (area * target.vf)
+    if target.thickness is not None:
+        curve.target = target.thickness
+    else:
+        assert target.vf is not None  # CompactionTarget has one of the two
+        curve.target = curve.fibre_volume / (area * target.vf)
     curve.add(relaxed_thickness, 0.0, max(phi0), 0, area)
     least, (x, y) = thinnest_stack(ms, law)
     log.info("compaction: from %.4f mm (Vf %.3f) to %.4f mm (Vf %.3f) in %d steps; packed to %.4g the yarns at "
@@ -144,15 +158,29 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
         step_mould = Mould(mid - h / 2, mid + h / 2)
         problem = ContactProblem(ms, plate, options, loads=loads, mould=step_mould, compaction=law)
         if start is relaxed:  # one surface of unknowns -> two
-            start = replace(relaxed, unknowns=(problem.numbering.local_surfaces(relaxed.unknowns[0]),
-                                               relaxed.unknowns[1]))
+            x0: np.ndarray = relaxed.unknowns[0]  # type: ignore[index]  # (unknowns, forces): the exact method's
+            start = replace(relaxed, unknowns=(problem.numbering.local_surfaces(x0), relaxed.unknowns[1]))  # type: ignore[index]
         step = solve_problem(problem, start=start)
         if not step.converged:
             curve.reason = f"step {k} of {target.steps} ({h:.4g} mm): {step.reason}"
             log.warning("compaction: %s", curve.reason)
             break
+        if k == target.steps:  # the last: where its gap field dips below 0 between nodes, once more
+            dip = widen_margins(ms, step.w, step.dt)  # with margins that keep it >= 0 there too
+            if dip > 0:
+                log.info("compaction: margins widened by up to %.1e mm where the gap dips between nodes; the last "
+                         "step again", dip)
+                again = solve_problem(ContactProblem(ms, plate, options, loads=loads, mould=step_mould,
+                                                     compaction=law), start=step)
+                if not again.converged:
+                    curve.reason = f"step {k} of {target.steps} ({h:.4g} mm), with widened margins: {again.reason}"
+                    log.warning("compaction: %s", curve.reason)
+                    break
+                again.iterations += step.iterations
+                step = again
         solution, mould, start = step, step_mould, step
-        curve.add(h, float(step.pressure), _densest(ms, law, step.dt), step.iterations, area)
+        assert step.pressure is not None and step.dt is not None  # a closed mould, yarns that flatten
+        curve.add(h, step.pressure, _densest(ms, law, step.dt), step.iterations, area)
         log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps", k,
                  h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
     return solution, mould, curve

@@ -430,7 +430,8 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
     # its surfaces need no finer stations than its own (one polygon per station of the correction)
     resolution = replace(textile.resolution, spacing=max(textile.resolution.spacing, spacing),
                          section_points=n_points)
-    corrected = Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution)
+    corrected = Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution,
+                        plies=textile.plies)
     readable(corrected)
     return corrected
 

@@ -99,6 +99,9 @@ def metrics_document(run) -> dict:
         "yarn_surface_volume_per_length_change": m.get("yarn_surface_volume_per_length_change"),
         "yarn_folded_fraction": m.get("yarn_folded_fraction"),
         "vf": pick("vf"),
+        "plies": run.textile.plies,
+        "thickness_per_ply": {k: (None if v is None else v / run.textile.plies)
+                              for k, v in pick("thickness").items()},
         "dofs": summary["dofs"], "cells": summary["cells"], "iterations": summary["iterations"],
         "converged": summary["converged"], "reason": summary["reason"],
         "penetration_nodal_mm": summary["max_penetration_nodal"], "max_abs_w_mm": summary["max_abs_w"],
@@ -106,6 +109,10 @@ def metrics_document(run) -> dict:
         "parameters": asdict(run.settings.plate), "solver": asdict(run.settings.solver),
         "mesh": asdict(run.settings.mesh), "correction": asdict(run.settings.correction),
         "mould": {"asked": run.settings.mould, "closed": summary["mould"]},
+        "compaction": None if run.compaction is None else {
+            "target_mm": run.compaction.target, "thickness_mm": run.compaction.thickness[-1],
+            "pressure_MPa": run.compaction.pressure[-1], "densest_yarn_vf": max(run.compaction.densest),
+            "stopped": run.compaction.reason, "settings": asdict(run.settings.compaction)},
         "ranks": run.comm.size, "versions": versions(), "units": "mm, mm^3",
     }
 

@@ -9,10 +9,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import dolfinx
 import numpy as np
 from mpi4py import MPI
 
+import dolfinx
 from textile_fenicsx.compaction import CompactionCurve, CompactionTarget, compact, yarn_fibre_areas
 from textile_fenicsx.correct import CorrectionOptions, Flat, corrected_textile
 from textile_fenicsx.errors import TextileError
@@ -20,12 +20,12 @@ from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.memory import release_freed_memory
-from textile_fenicsx.metrics import mean_section_area
 from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
+from textile_fenicsx.metrics import mean_section_area
 from textile_fenicsx.slopes import slope_thickness
-from textile_fenicsx.solver.flattening import THINNEST
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
+from textile_fenicsx.solver.flattening import THINNEST
 from textile_fenicsx.textile import Textile
 
 __all__ = ["Run", "Settings", "run"]

@@ -106,7 +106,8 @@ class Textile:
     `coupon.tile`, how (the unit cell, the repeats, each yarn's source), so that its mesh can be
     the unit cell's repeated; None otherwise. thickness: the thickness the fabric is woven to [mm],
     where its maker states one (a 3D weave's: TexGen's FabricThickness, our orthogonal builder's),
-    the default mould of the solve (pipeline.Settings.mould); None otherwise."""
+    the default mould of the solve (pipeline.Settings.mould); None otherwise. plies: how many plies
+    of one fabric it stacks (plies.stack: its yarns come ply by ply), 1 otherwise."""
 
     cell: Cell
     yarns: list = field(default_factory=list)
@@ -114,6 +115,7 @@ class Textile:
     resolution: Resolution = field(default_factory=Resolution)
     tiling: Tiling | None = None
     thickness: float | None = None
+    plies: int = 1
 
     def __post_init__(self):
         if not self.yarns:

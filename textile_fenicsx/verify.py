@@ -212,7 +212,7 @@ def _compaction_checks(run, after: dict, out: dict, verdict: dict) -> None:
 
 
 def _surface_checks(initial: Textile, corrected: Textile, tol: Tolerances, out: dict, verdict: dict,
-                    expected: np.ndarray) -> None:
+                    expected: np.ndarray | None = None) -> None:
     """Every yarn's volume per length from its own surface, and its folds (tube()): the volume
     per length of the rays (above) counts a yarn's volume in the cell, which a fold-over hides
     (TexGen's orthogonal binders at seed 0.5 held 3.8 % less per length with every section's area
@@ -220,6 +220,7 @@ def _surface_checks(initial: Textile, corrected: Textile, tol: Tolerances, out: 
     names = [y.name for y in initial.yarns]
     tubes = [(tube(y0, initial.resolution), tube(y1, corrected.resolution))
              for y0, y1 in zip(initial.yarns, corrected.yarns)]
+    expected = np.ones(len(tubes)) if expected is None else expected  # a pressed yarn's plate's change
     per_length = [t1.per_length / t0.per_length / e - 1 for (t0, t1), e in zip(tubes, expected)]
     folded = [max(0.0, t1.folded / t1.volume - t0.folded / t0.volume) for t0, t1 in tubes]
     out["yarn_surface_volume_per_length_change"] = per_length

@@ -14,6 +14,8 @@ One module per idea:
 import logging
 import time
 
+import numpy as np
+
 from textile_fenicsx.memory import release_freed_memory
 from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.linear import DIRECT_LDLT, DIRECT_LU, OUT_OF_CORE, SolverError, check_converged
@@ -41,7 +43,7 @@ def solve_problem(problem: ContactProblem, start: Solution | None = None, keep: 
         gap, contact = problem.fields(out.gaps, out.active)
         unknowns = (out.x.getArray().copy(), out.forces)
         dt = problem.thickness_changes(out.x)
-        pressure = None if out.forces is None else problem.platen_pressure(out.forces)
+        pressure = None if out.forces is None else problem.platen_pressure(np.asarray(out.forces))
         w = problem.displacements(out.x)
         out.x.destroy()
         factorisations = problem.factorisations

@@ -90,14 +90,13 @@ def flattening_terms(ms: MidSurfaces, numbering: Periodicity, maps: list, compac
         ib, it = numbering.unknown(y.yarn, i, BOTTOM), numbering.unknown(y.yarn, i, TOP)
         rows.append(np.concatenate([ib, ib, it, it]))
         cols.append(np.concatenate([ib, it, ib, it]))
-    cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
-    return terms, (cat(rows), cat(cols))
+    return terms, tuple(np.concatenate(a) if a else np.zeros(0, np.int64) for a in (rows, cols))
 
 
 def hessian_values(terms: list[Flattening], x: PETSc.Vec) -> np.ndarray:
     """The compaction energy's Hessian entries at x (in flattening_terms' order): the Jacobian of
-    each yarn's W(t0 + dt) in dt (diagonal: the energy is taken at the nodes), at (bottom, bottom), (bottom, top), (top, bottom), (top, top)
-    with the signs of dt = x_top - x_bottom."""
+    each yarn's W(t0 + dt) in dt (diagonal: the energy is taken at the nodes), at (bottom, bottom),
+    (bottom, top), (top, bottom), (top, top) with the signs of dt = x_top - x_bottom."""
     parts = [np.zeros(0)]
     for term in terms:
         term.fill(x)

@@ -71,7 +71,7 @@ class Compaction:
 
     def fraction(self, yarn: int) -> float:
         """The relaxed fibre fraction phi0 of plate yarn `yarn` [-]."""
-        return float(self.phi0) if np.isscalar(self.phi0) else float(self.phi0[yarn])  # type: ignore[index]
+        return float(self.phi0) if isinstance(self.phi0, (int, float)) else float(self.phi0[yarn])
 
 
 @dataclass(frozen=True)

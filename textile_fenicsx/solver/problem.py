@@ -389,7 +389,9 @@ class ContactProblem:
         n = self.nodes
         bottom = (n.pair == NONE) & (n.rows_l == NONE)
         total = self.comm.allreduce(float(np.sum(forces[bottom])), op=MPI.SUM)
-        return total / self.ms.projected.cell.area
+        cell = self.ms.projected.cell
+        assert cell is not None  # projected meshes are made with their cell
+        return total / cell.area
 
     def fields(self, g: list[np.ndarray], active: list[np.ndarray]) -> tuple[list, list]:
         """Per yarn, its gap to the yarn below [mm] (0 where none is) and where contact is active (1),
