@@ -167,6 +167,12 @@ def test_compaction_input_errors_exit_2(tmp_path):
     assert bad.returncode == 2 and "between 0 and the maximum packing" in bad.stderr
     bad = cli("orthogonal", "--compaction", 50, "--vf", 0.5)
     assert bad.returncode == 2 and "binder legs through the thickness is not modelled" in bad.stderr
+    bad = cli("plain", "--plies", 2, "--ply-offsets", "0,0")
+    assert bad.returncode == 2 and "give 2 in-plane offsets (dx, dy) in mm, one per ply" in bad.stderr
+    bad = cli("plain", "--plies", 2, "--ply-offsets", "0,0", "1;1")
+    assert bad.returncode == 2 and "expected DX,DY pairs in mm" in bad.stderr
+    bad = cli("plain", "--plies", 0)
+    assert bad.returncode == 2 and "plies" in bad.stderr
     assert not (tmp_path / "out").exists()
 
 

@@ -356,6 +356,7 @@ def test_fields_open_in_meshio_and_pyvista(satin_run, mpi_tmp_path):
     ("coupon_edges", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_REPEATS": "2"}),
     ("homogenise_satin", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_KINDS": "voxel",
                           "TEXTILE_FENICSX_VOXEL": "0.4", "TEXTILE_FENICSX_DEGREE": "1"}),
+    ("compaction_satin", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_TARGETS": "0.45 0.5"}),
 ])
 def test_demos_run_on_coarse_seeds(demo, env, tmp_path):
     run_env = dict(os.environ, TEXTILE_FENICSX_OUT=str(tmp_path / demo), **env)

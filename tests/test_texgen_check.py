@@ -109,3 +109,23 @@ def test_corrected_plain_weave_in_texgen(texgen_python, reference_dir, tmp_path)
     assert len(y1) == len(y0)
     for i, (a, b) in enumerate(zip(y0, y1)):
         assert b == pytest.approx(a, rel=0.01), f"yarn {i}: volume {b:.5g} mm^3 after, {a:.5g} before"
+
+
+def test_a_pressed_satin_in_texgen(texgen_python, tmp_path):
+    """Issue 29: the 4-harness satin pressed to 0.6 of its relaxed thickness (0.868 mm at seed 0.5),
+    its yarns flattened: TexGen, reading corrected.tg3, measures the thickness we measure and no
+    overlap beyond the check's bounds."""
+    out = tmp_path / "out"
+    run = subprocess.run(
+        [sys.executable, "-m", "textile_fenicsx", "solve", "crowfoot_satin", "--seed", "0.5", "--compaction", "50",
+         "--mould", str(0.6 * 0.8681), "--no-figures", "--out", str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=1800,
+    )
+    assert run.returncode == 0, _tail(run.stderr)
+    ours = json.loads((out / "metrics.json").read_text())
+    seen = texgen_measure(texgen_python, out / "corrected.tg3")
+    assert seen["thickness"] == pytest.approx(ours["thickness"]["after"], abs=0.002)  # the rays' sampling
+    assert seen["thickness"] < 0.6 * 0.8681 + 0.01  # the mould, and the sections between the plates' nodes
+    assert seen["interpenetration"]["max_depth"] <= 0.003  # the check's: 1 % of the 0.3 mm yarns
+    before = ours["interpenetration"]["before"]["volume"]
+    assert seen["interpenetration"]["volume"] <= 0.01 * before
