@@ -39,7 +39,7 @@ demo:
 
 demos:
 	for d in satin_4hs orthogonal_3d mesh_convergence parameter_study plate_c0ip coupon_edges homogenise_satin \
-	  compaction_satin; do \
+	  compaction_satin nested_laminate; do \
 	  $(ENV) env TEXTILE_FENICSX_OUT=$(OUT)/$$d python3 demos/$$d.py || exit 1; done
 
 test: test-serial test-mpi

@@ -203,9 +203,12 @@ def plot_curve(curve: CompactionCurve, path, title: str) -> None:
         ax.grid(True, alpha=0.3)
     left.axvline(curve.target, color="tab:red", ls="--", label=f"target {curve.target:.3f} mm")
     left.invert_xaxis()  # pressing goes to the right
-    right.plot(curve.vf, curve.densest, "s--", color="tab:green", label="densest yarn's fibre fraction [-]")
-    for ax in (left, right):
-        ax.legend(loc="upper left", fontsize=8)
+    left.legend(loc="upper left", fontsize=8)
+    phi = right.twinx()  # a fraction, on an axis of its own
+    phi.plot(curve.vf, curve.densest, "s--", color="tab:green", label="densest yarn node's fibre fraction")
+    phi.set_ylabel("intra-yarn fibre fraction [-]", color="tab:green")
+    lines = right.get_legend_handles_labels(), phi.get_legend_handles_labels()
+    right.legend(lines[0][0] + lines[1][0], lines[0][1] + lines[1][1], loc="upper left", fontsize=8)
     fig.suptitle(title + ("" if curve.reason is None else " (stopped short)"))
     fig.savefig(path, dpi=120)
     plt.close(fig)
