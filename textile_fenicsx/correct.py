@@ -81,11 +81,14 @@ class _Whole:
 
 class Flat:
     """A yarn plate's flattening (compaction.py): a point of a section moves, besides w, toward
-    the section's centre by its height above it times dt / t at its own in-plane point, so the
-    section thins as the plate's thickness t does (DESIGN.md 7). The centre, not the plate's
-    mid-height z0 there: z0 extrapolated to the section points just outside the footprint (rays
-    graze the yarn's edge) moved a plain weave's weft edges 0.02 mm into the warps. dt / t is read
-    within the range of its nodal values, `bounds`: its interpolant overshoots near the edges."""
+    the section's mid-height over it (correct._mid_heights) by its height above it times dt / t at
+    its own in-plane point, so the section thins about its middle as the plate's thickness t does
+    (DESIGN.md 7). The section's own middle, not the plate's mid-height z0 there: z0 extrapolated to
+    the section points just outside the footprint (rays graze the yarn's edge) moved a plain
+    weave's weft edges 0.02 mm into the warps; nor the section's centre line: TexGen's refined
+    sections are not symmetric about it, and thinned about it their tops moved less than the
+    plates' (a refined plain weave overlapped 7.7e-4 mm^3). dt / t is read within the range of its
+    nodal values, `bounds`: its interpolant overshoots near the edges."""
 
     def __init__(self, ratio, bounds: tuple[float, float], cell: Cell):
         self.ratio, self.bounds, self.cell = ratio, bounds, cell  # ratio: dt / t (a Function)
@@ -212,8 +215,8 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     pts_xy = (pos[:, None, :2] + u0[..., None] * side0[:, None, :2]
               + (v0 * fade[:, None])[..., None] * up0[:, None, :2])
     w_pts = w.points(s, pts_xy, w_centre)
-    if flat is not None:  # each point also moves toward the section's centre as the yarn thins
-        flat_pts = flat.shift(pts_xy, v0 * up0[:, None, 2])
+    if flat is not None:  # each point also moves toward the section's mid-height over it as the yarn thins
+        flat_pts = flat.shift(pts_xy, (v0 - _mid_heights(u0, v0)) * up0[:, None, 2])
         w_pts = w_pts + flat_pts
     new_pos = pos + np.outer(w_centre, [0.0, 0.0, 1.0])
     if yarn.periodic:  # the last station repeats the first, shifted by the period
@@ -239,6 +242,26 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     tol = SECTION_TOL * _heights(polys).min() if section_tol is None else section_tol
     return Yarn(new_pos, sparse_sections(new_pos, polys, yarn.periodic, tol),
                 "cubic", yarn.periodic, yarn.repeats, ups=ups, name=yarn.name, fibres=yarn.fibres)
+
+
+def _mid_heights(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Per polygon (u[m], v[m]), at each of its points the mid-height of the polygon over that
+    point's u: the mean of its two chains from its leftmost to its rightmost point there (a
+    section's, seen across the yarn). 0 for sections symmetric about their centre line."""
+    mid = np.empty_like(v)
+    n = u.shape[1]
+    for m in range(len(u)):
+        a, b = int(np.argmin(u[m])), int(np.argmax(u[m]))
+        order = np.roll(np.arange(n), -a)
+        split = int(np.flatnonzero(order == b)[0])
+        chains = [order[:split + 1], np.append(order[split:], a)]
+        heights = []
+        for chain in chains:
+            uc, vc = u[m, chain], v[m, chain]
+            k = np.argsort(uc, kind="stable")
+            heights.append(np.interp(u[m], uc[k], vc[k]))
+        mid[m] = (heights[0] + heights[1]) / 2
+    return mid
 
 
 # a station's section is kept when the blend of its neighbours misses it by more than this part of
