@@ -404,3 +404,16 @@ def mesh_statistics(ms: MidSurfaces) -> dict:
     stats["contact_pairs"] = [list(map(int, k)) for k in stats["contact_pairs"]]
     stats["yarns"] = per_yarn
     return stats
+
+
+def plate_extent(ms: MidSurfaces, w: list | None = None, dt: list | None = None) -> tuple[float, float]:
+    """The lowest bottom and highest top of the plates at their nodes, z0 + w -+ (t + dt)/2 [mm],
+    with the displacements w and thickness changes dt per yarn where given (collective)."""
+    lo, hi = np.inf, -np.inf
+    for k, y in enumerate(ms.yarns):
+        z = y.z0.x.array + (0.0 if w is None else w[k].x.array)
+        t = y.t.x.array + (0.0 if dt is None else dt[k].x.array)
+        if len(z):
+            lo, hi = min(lo, float(np.min(z - t / 2))), max(hi, float(np.max(z + t / 2)))
+    comm = ms.V.mesh.comm
+    return comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)

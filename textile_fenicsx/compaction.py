@@ -18,7 +18,7 @@ from mpi4py import MPI
 
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.fibres import DEFAULT_YARN_VF
-from textile_fenicsx.meshes.midsurface import MidSurfaces, widen_margins
+from textile_fenicsx.meshes.midsurface import MidSurfaces, plate_extent, widen_margins
 from textile_fenicsx.metrics import mean_section_area
 from textile_fenicsx.solver import (
     Compaction,
@@ -30,11 +30,11 @@ from textile_fenicsx.solver import (
     solve_problem,
 )
 from textile_fenicsx.solver.flattening import thinnest_stack
+from textile_fenicsx.solver.parameters import HEXAGONAL
 from textile_fenicsx.textile import Textile
 
 __all__ = ["CompactionCurve", "CompactionTarget", "compact", "fibre_volume"]
 
-HEXAGONAL = float(np.pi / (2 * np.sqrt(3)))  # the densest packing of equal circles [-]
 
 log = logging.getLogger(__name__)
 
@@ -102,18 +102,6 @@ def fibre_volume(textile: Textile) -> float:
     return float(sum(a * y.length() for a, y in zip(yarn_fibre_areas(textile), textile.yarns)))
 
 
-def _extent(ms: MidSurfaces, w: list, dt: list | None) -> tuple[float, float]:
-    """The lowest bottom and highest top of the plates at their nodes [mm]."""
-    lo, hi = np.inf, -np.inf
-    for k, y in enumerate(ms.yarns):
-        z = y.z0.x.array + w[k].x.array
-        t = y.t.x.array + (0.0 if dt is None else dt[k].x.array)
-        if len(z):
-            lo, hi = min(lo, float(np.min(z - t / 2))), max(hi, float(np.max(z + t / 2)))
-    comm = ms.V.mesh.comm
-    return comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)
-
-
 def _densest(ms: MidSurfaces, law: Compaction, dt: list) -> float:
     """The largest intra-yarn fibre fraction at a node, phi0 t0 / t [-]."""
     local = max([float(np.max(law.fraction(y.yarn) * y.t.x.array / (y.t.x.array + d.x.array)))
@@ -128,7 +116,7 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
     law = Compaction(target.modulus, tuple(phi0), target.phi_max)
     area = textile.cell.area
     curve = CompactionCurve(fibre_volume=fibre_volume(textile))
-    lo, hi = _extent(ms, relaxed.w, None)
+    lo, hi = plate_extent(ms, relaxed.w)
     relaxed_thickness = hi - lo
     if target.thickness is not None:
         curve.target = target.thickness

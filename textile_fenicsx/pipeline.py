@@ -20,12 +20,12 @@ from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.memory import release_freed_memory
-from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, widen_margins
+from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, plate_extent, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
-from textile_fenicsx.metrics import mean_section_area
+from textile_fenicsx.metrics import yarn_fibre_fractions
 from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
-from textile_fenicsx.solver.flattening import THINNEST
+from textile_fenicsx.solver.flattening import law_thickness
 from textile_fenicsx.textile import Textile
 
 __all__ = ["Run", "Settings", "run"]
@@ -215,8 +215,9 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     if solution.converged and settings.compaction is not None:
         begin("compact")
         t = time.perf_counter()
-        pressed, pressed_mould, curve = compact(ms, textile, solution, settings.compaction, _fractions(textile),
-                                                settings.plate, settings.solver, loads)
+        phi0 = yarn_fibre_fractions(textile)[0]  # each yarn's relaxed fibre fraction
+        pressed, pressed_mould, curve = compact(ms, textile, solution, settings.compaction, phi0, settings.plate,
+                                                settings.solver, loads)
         if pressed is not None:
             solution, mould = pressed, pressed_mould
             flats, ratio = _flats(ms, solution, textile), _volume_ratio(ms, solution)
@@ -243,17 +244,6 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     return result
 
 
-def _extent(ms: MidSurfaces, w=None) -> tuple[float, float]:
-    """The lowest bottom and highest top of the plates at their nodes, z0 + w -+ t/2 [mm]."""
-    lo, hi = np.inf, -np.inf
-    for k, y in enumerate(ms.yarns):
-        z = y.z0.x.array + (0.0 if w is None else w[k].x.array)
-        if len(z):
-            lo, hi = min(lo, float(np.min(z - y.t.x.array / 2))), max(hi, float(np.max(z + y.t.x.array / 2)))
-    comm = ms.V.mesh.comm
-    return comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)
-
-
 def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None, at_most_initial: bool) -> Mould | None:
     """A mould of the given thickness (at_most_initial: no thicker than the plates at the start)
     centred on the model's mid-plane, if the solved plates w are thicker than it (a mould that
@@ -261,10 +251,10 @@ def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None, at_most_in
     its pin); else None."""
     if thickness is None:
         return None
-    lo0, hi0 = _extent(ms)
+    lo0, hi0 = plate_extent(ms)
     if at_most_initial:
         thickness = min(thickness, hi0 - lo0)
-    lo, hi = _extent(ms, w)
+    lo, hi = plate_extent(ms, w)
     if hi - lo <= thickness:
         log.info("mould: the fabric (%.4f mm) fits the mould's %.4f mm: it stays open", hi - lo, thickness)
         return None
@@ -274,22 +264,15 @@ def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None, at_most_in
     return Mould(mid - thickness / 2, mid + thickness / 2)
 
 
-def _fractions(textile: Textile) -> list[float]:
-    """Each yarn's relaxed intra-yarn fibre fraction: its fibres' cross-section over its mean section [-]."""
-    return [a / mean_section_area(y, textile.resolution) for a, y in zip(yarn_fibre_areas(textile), textile.yarns)]
-
-
 def _flats(ms: MidSurfaces, solution: Solution, textile: Textile) -> list:
     """Per yarn (a plate each) its flattening for the correction: dt / t and the range of its nodal values."""
     flats = []
     for y, dt in zip(ms.yarns, solution.dt or []):
         ratio = dolfinx.fem.Function(y.V, name="dt_over_t")
-        # over the law's own relaxed thickness (solver/flattening.py: at least THINNEST of the largest;
-        # a yarn's edge nodes, t ~ 4e-6 mm, moved 1.6e-5 mm apart by the spring and read 3.9)
-        comm, t = y.mesh.comm, y.t.x.array
-        largest = comm.allreduce(float(np.max(t, initial=0.0)), op=MPI.MAX)
-        ratio.x.array[:] = dt.x.array / np.maximum(t, THINNEST * largest)
-        r = ratio.x.array
+        # over the law's own relaxed thickness, not t (a yarn's edge nodes, t ~ 4e-6 mm, moved 1.6e-5 mm
+        # apart by the spring and read 3.9)
+        ratio.x.array[:] = dt.x.array / law_thickness(y)
+        comm, r = y.mesh.comm, ratio.x.array
         bounds = (comm.allreduce(float(np.min(r, initial=0.0)), op=MPI.MIN),
                   comm.allreduce(float(np.max(r, initial=0.0)), op=MPI.MAX))
         flats.append(Flat(ratio, bounds, textile.cell))

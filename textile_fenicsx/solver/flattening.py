@@ -26,7 +26,7 @@ from textile_fenicsx.meshes.midsurface import MidSurfaces
 from textile_fenicsx.solver.parameters import Compaction
 from textile_fenicsx.solver.periodic import BOTTOM, TOP, Periodicity
 
-__all__ = ["Flattening", "PackingRows", "flattening_terms", "packing_rows", "thinnest_stack"]
+__all__ = ["Flattening", "PackingRows", "flattening_terms", "law_thickness", "packing_rows", "thinnest_stack"]
 
 
 # A plate's thickness falls to 0 at the yarn's edges (the rays graze its section there), where the
@@ -34,6 +34,13 @@ __all__ = ["Flattening", "PackingRows", "flattening_terms", "packing_rows", "thi
 # largest. The packing constraint reads the true thickness, so such a node cannot thin below
 # phi0 / phi_max of it, and t0 + dt stays positive in the law
 THINNEST = 0.02
+
+
+def law_thickness(y) -> np.ndarray:
+    """The relaxed thickness the law reads at yarn y's dofs: its plate's t, at least THINNEST of
+    the yarn's largest [mm] (collective)."""
+    t = y.t.x.array
+    return np.maximum(t, THINNEST * y.mesh.comm.allreduce(float(np.max(t, initial=0.0)), op=MPI.MAX))
 
 
 @dataclass(frozen=True)
@@ -69,9 +76,8 @@ def flattening_terms(ms: MidSurfaces, numbering: Periodicity, maps: list, compac
     for y, (bottom, top) in zip(ms.yarns, maps):
         msh = y.mesh
         dt = dolfinx.fem.Function(y.V, name="dt")
-        t0 = y.t.copy()  # the law's relaxed thickness: at least THINNEST of the yarn's largest
-        largest = msh.comm.allreduce(float(np.max(t0.x.array, initial=0.0)), op=MPI.MAX)
-        t0.x.array[:] = np.maximum(t0.x.array, THINNEST * largest)
+        t0 = y.t.copy()
+        t0.x.array[:] = law_thickness(y)
         c = dolfinx.fem.Constant
         modulus, phi0 = c(msh, float(compaction.modulus)), c(msh, compaction.fraction(y.yarn))
         _, residual, jacobian = compaction_forms(dt, t0, modulus, phi0, y.dx)

@@ -13,6 +13,7 @@ from textile_fenicsx.solver.linear import DIRECT_LDLT, OUT_OF_CORE
 __all__ = ["METHODS", "Compaction", "Mould", "PlateParameters", "Solution", "SolverOptions"]
 
 METHODS = ("exact", "penalty")
+HEXAGONAL = float(np.pi / (2 * np.sqrt(3)))  # the densest packing of equal circles [-]
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ class Compaction:
 
     modulus: float
     phi0: float | tuple[float, ...] = 0.65
-    phi_max: float = float(np.pi / (2 * np.sqrt(3)))
+    phi_max: float = HEXAGONAL
 
     def __post_init__(self):
         check_positive("compaction modulus", self.modulus)
