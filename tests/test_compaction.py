@@ -7,6 +7,7 @@ from mpi4py import MPI
 from textile_fenicsx.meshes.midsurface import plate_surfaces
 from textile_fenicsx.meshes.projected import plate_mesh
 from textile_fenicsx.solver import Compaction, ContactProblem, Mould, SolverOptions, solve_problem
+from textile_fenicsx.solver.flattening import hessian_values
 from textile_fenicsx.textile import Cell
 
 T0, MODULUS, PHI0 = 0.3, 50.0, 0.6  # relaxed thickness [mm], k E_f [MPa], relaxed fibre fraction
@@ -95,6 +96,63 @@ from textile_fenicsx.weaves import build  # noqa: E402
 
 def pressed(name: str, seed: float, comm=MPI.COMM_WORLD, **target):
     return run(build(name), Settings(MeshOptions(seed), compaction=CompactionTarget(MODULUS, **target)), comm=comm)
+
+
+@pytest.mark.mpi
+def test_the_newton_systems_in_mid_height_and_thickness_are_the_same_systems():
+    # solver/basis.py: where the yarns flatten, the Newton matrix K over the bottom and top heights
+    # is factorised as T^T K T over (w, dt) with the plates' cancelled blocks left out. It must be
+    # the same operator (T^T K T y for random y, to round-off), with fewer entries, and a solve
+    # with it must solve K dx = r
+    from petsc4py import PETSc
+
+    from textile_fenicsx.meshes.midsurface import mid_surfaces
+    from textile_fenicsx.meshes.projected import projected_mesh
+
+    ms = mid_surfaces(projected_mesh(build("plain"), MeshOptions(0.5)))
+    problem = ContactProblem(ms, mould=Mould(-0.3, 0.3), compaction=Compaction(MODULUS, PHI0))
+    try:
+        rng = np.random.default_rng(MPI.COMM_WORLD.rank)
+        x = problem.numbering.vector()
+        x.getArray()[:] = 1e-3 * rng.standard_normal(x.getLocalSize())  # a thickness change well inside the law
+        weights = rng.uniform(0.1, 10.0, len(problem.nodes.g0))  # the interior point's nodal weights
+        problem.newton_matrix(c_nodes=weights, at=x)
+        K = problem.pattern.matrix()  # the same matrix over (bottom, top)
+        problem.pattern.fill(K, problem._variable([np.zeros(problem._pair_entries)], weights,
+                                                  hessian_values(problem.flattening, x)))
+        y, Ty, KTy, TKTy, Ky = (x.duplicate() for _ in range(5))
+        y.getArray()[:] = rng.standard_normal(y.getLocalSize())
+        problem.basis.apply(y, Ty)
+        K.mult(Ty, KTy)
+        problem.basis.transpose(KTy, TKTy)
+        problem.K.mult(y, Ky)
+        Ky.axpy(-1.0, TKTy)
+        assert Ky.norm() <= 1e-12 * TKTy.norm()
+        entries = [M.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] for M in (problem.K, K)]
+        assert entries[0] < entries[1], entries  # the plates' blocks in (w, dt) and (dt, dt) are gone
+        # a solve: K dx = r to round-off
+        dx, residual = x.duplicate(), x.duplicate()
+        problem.solve(y.copy(), dx, "the test")
+        K.mult(dx, residual)
+        residual.axpy(-1.0, y)
+        assert residual.norm() <= 1e-9 * y.norm()
+        for v in (y, Ty, KTy, TKTy, Ky, dx, residual, x, K):
+            v.destroy()
+    finally:
+        problem.destroy()
+    # one yarn between platens, no pairs: over (bottom, top) the plate's n x n pattern A is there
+    # four times; over (w, dt) once, with the law's (dt, dt) and the platens' (w, dt), (dt, w) at
+    # each node: 4 nnz(A) -> nnz(A) + 3 n
+    ms = plate_surfaces(plate_mesh(Cell(2.0, 2.0), 0.5), lambda x: 0 * x[0], lambda x: T0 + 0 * x[0], (1.0, 0.0))
+    problem = ContactProblem(ms, mould=Mould(-T0 / 2, T0 / 2), compaction=Compaction(MODULUS, PHI0))
+    try:
+        K = problem.pattern.matrix()
+        n = problem.numbering.n // 2
+        both, once = (M.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] for M in (K, problem.K))
+        assert both % 4 == 0 and once == both // 4 + 3 * n
+        K.destroy()
+    finally:
+        problem.destroy()
 
 
 @pytest.mark.mpi

@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from textile_fenicsx.errors import TextileError, check_positive
 from textile_fenicsx.fibres import DEFAULT_YARN_VF
+from textile_fenicsx.memory import release_freed_memory
 from textile_fenicsx.meshes.midsurface import MidSurfaces, plate_extent, widen_margins
 from textile_fenicsx.metrics import mean_section_area
 from textile_fenicsx.solver import (
@@ -134,43 +135,52 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
         return None, None, curve
     mid = (lo + hi) / 2
     start, solution, mould = relaxed, None, None
-    for k in range(1, target.steps + 1):
-        h = relaxed_thickness + (curve.target - relaxed_thickness) * k / target.steps
-        if h < least:  # no solve can take it: the nodes' constraints cannot all hold
-            curve.reason = (f"step {k} of {target.steps} ({h:.4g} mm, Vf {curve.fibre_volume / (area * h):.3f}) is "
-                            f"beyond the maximum packing {target.phi_max:.4g} of the compaction law: packed to it, the "
-                            f"yarns stacked at ({x:.3f}, {y:.3f}) mm are still {least:.4g} mm thick (give a thicker "
-                            "mould or a lower fibre volume fraction)")
-            log.warning("compaction: %s", curve.reason)
-            break
-        step_mould = Mould(mid - h / 2, mid + h / 2)
-        problem = ContactProblem(ms, plate, options, loads=loads, mould=step_mould, compaction=law)
-        if start is relaxed:  # one surface of unknowns -> two
-            x0: np.ndarray = relaxed.unknowns[0]  # type: ignore[index]  # (unknowns, forces): the exact method's
-            start = replace(relaxed, unknowns=(problem.numbering.local_surfaces(x0), relaxed.unknowns[1]))  # type: ignore[index]
-        step = solve_problem(problem, start=start)
-        if not step.converged:
-            curve.reason = f"step {k} of {target.steps} ({h:.4g} mm): {step.reason}"
-            log.warning("compaction: %s", curve.reason)
-            break
-        if k == target.steps:  # the last: where its gap field dips below 0 between nodes, once more
-            dip = widen_margins(ms, step.w, step.dt)  # with margins that keep it >= 0 there too
-            if dip > 0:
-                log.info("compaction: margins widened by up to %.1e mm where the gap dips between nodes; the last "
-                         "step again", dip)
-                again = solve_problem(ContactProblem(ms, plate, options, loads=loads, mould=step_mould,
-                                                     compaction=law), start=step)
-                if not again.converged:
-                    curve.reason = f"step {k} of {target.steps} ({h:.4g} mm), with widened margins: {again.reason}"
-                    log.warning("compaction: %s", curve.reason)
-                    break
-                again.iterations += step.iterations
-                step = again
-        solution, mould, start = step, step_mould, step
-        assert step.pressure is not None and step.dt is not None  # a closed mould, yarns that flatten
-        curve.add(h, step.pressure, _densest(ms, law, step.dt), step.iterations, area)
-        log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps", k,
-                 h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
+    problem = None  # one problem for every step: the platens move (ContactProblem.renew)
+    try:
+        for k in range(1, target.steps + 1):
+            h = relaxed_thickness + (curve.target - relaxed_thickness) * k / target.steps
+            if h < least:  # no solve can take it: the nodes' constraints cannot all hold
+                curve.reason = (f"step {k} of {target.steps} ({h:.4g} mm, Vf {curve.fibre_volume / (area * h):.3f}) "
+                                f"is beyond the maximum packing {target.phi_max:.4g} of the compaction law: packed to "
+                                f"it, the yarns stacked at ({x:.3f}, {y:.3f}) mm are still {least:.4g} mm thick (give "
+                                "a thicker mould or a lower fibre volume fraction)")
+                log.warning("compaction: %s", curve.reason)
+                break
+            step_mould = Mould(mid - h / 2, mid + h / 2)
+            if problem is None:
+                problem = ContactProblem(ms, plate, options, loads=loads, mould=step_mould, compaction=law)
+                x0: np.ndarray = relaxed.unknowns[0]  # type: ignore[index]  # (unknowns, forces): the exact method's
+                # one surface of unknowns -> two
+                start = replace(relaxed, unknowns=(problem.numbering.local_surfaces(x0), relaxed.unknowns[1]))  # type: ignore[index]
+            else:
+                problem.renew(options, step_mould)
+            step = solve_problem(problem, start=start, keep=True)
+            if not step.converged:
+                curve.reason = f"step {k} of {target.steps} ({h:.4g} mm): {step.reason}"
+                log.warning("compaction: %s", curve.reason)
+                break
+            if k == target.steps:  # the last: where its gap field dips below 0 between nodes, once more
+                dip = widen_margins(ms, step.w, step.dt)  # with margins that keep it >= 0 there too
+                if dip > 0:
+                    log.info("compaction: margins widened by up to %.1e mm where the gap dips between nodes; the "
+                             "last step again", dip)
+                    problem.renew(options)
+                    again = solve_problem(problem, start=step, keep=True)
+                    if not again.converged:
+                        curve.reason = f"step {k} of {target.steps} ({h:.4g} mm), with widened margins: {again.reason}"
+                        log.warning("compaction: %s", curve.reason)
+                        break
+                    again.iterations += step.iterations
+                    step = again
+            solution, mould, start = step, step_mould, step
+            assert step.pressure is not None and step.dt is not None  # a closed mould, yarns that flatten
+            curve.add(h, step.pressure, _densest(ms, law, step.dt), step.iterations, area)
+            log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps",
+                     k, h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
+    finally:
+        if problem is not None:
+            problem.destroy()
+            release_freed_memory()
     return solution, mould, curve
 
 

@@ -88,6 +88,17 @@ class Periodicity:
             return vals[k] + self._yarn_counts[i][rank]
         return vals[k]
 
+    def surface_pairs(self, unknowns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For global unknowns (surfaces=2), the bottom's and the top's unknown of their node and
+        the surface's sign (-1 bottom, +1 top); any rank's unknowns."""
+        starts, counts = self._yarn_starts.T.ravel(), self._yarn_counts.T.ravel()  # rank by rank, yarn by yarn
+        u = np.asarray(unknowns, dtype=np.int64)
+        block = np.searchsorted(starts, u, side="right") - 1
+        offset, n = u - starts[block], counts[block]
+        top = offset >= n
+        bottom = starts[block] + np.where(top, offset - n, offset)
+        return bottom, bottom + n, np.where(top, 1.0, -1.0)
+
     def local_surfaces(self, one: np.ndarray) -> np.ndarray:
         """This rank's part of a vector over one surface's unknowns (a numbering with surfaces=1 of
         the same mesh) as a vector over both: each yarn's values on its bottom and its top."""

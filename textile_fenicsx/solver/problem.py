@@ -28,6 +28,7 @@ import dolfinx.fem.petsc
 from textile_fenicsx.errors import TextileError
 from textile_fenicsx.forms import c0ip_bending, foundation, load, tension
 from textile_fenicsx.meshes.midsurface import MidSurfaces
+from textile_fenicsx.solver.basis import MidAndThickness
 from textile_fenicsx.solver.contact import (
     NONE,
     build_pairs,
@@ -42,6 +43,7 @@ from textile_fenicsx.solver.flattening import (
     add_gradient,
     flattening_terms,
     hessian_values,
+    law_thickness,
     packing_rows,
     thickness_changes,
 )
@@ -163,28 +165,43 @@ class ContactProblem:
             pattern.absorb(self._variable(spring, 0.0))
             del spring
             self._add_contact(self.b_fixed, [-residual_values(p, g) for p, g in zip(self.pairs, g0)])
-        self.K, self.K_fixed = pattern.matrix(), pattern.matrix()
+        # yarns that flatten: the Newton systems in (w, dt), where the plates appear once (basis.py)
+        self.basis = None if compaction is None else MidAndThickness(pattern, numbering)
+        self.K_fixed = pattern.matrix()
+        self.K = pattern.matrix() if self.basis is None else self.basis.matrix(pattern.values())
         self.solver = DirectSolver(self.comm, options.linear_options)
         self.factorisations, self._convex_checked = 0, -1
 
-    def renew(self, options: SolverOptions) -> None:
+    def renew(self, options: SolverOptions, mould: Mould | None = None) -> None:
         """The problem again, for a solve with these options after the mid-surfaces' thickness and
-        contact margins changed (slopes.py, widen_margins): the plates, the pattern, the pairs'
-        forms and the direct solver (its analysis) are kept; the pairs' initial gaps and margins
-        are read again, and for the exact method the apart spring's load at them, -T^T J g0, moves
-        by -T^T J (g0_new - g0_old) (J does not depend on g). Not for a problem with a mould (its
-        platens' gaps are rows of its own): build a new one."""
-        if self.mould is not None or self.compaction is not None:
-            raise ValueError("a problem with a mould or yarns that flatten cannot be renewed: build a new one")
+        contact margins changed (slopes.py, widen_margins), or its mould's platens moved (`mould`,
+        for a problem built with one: a compaction's next step): the plates, the pattern, the
+        pairs' forms and the direct solver (its analysis) are kept; the pairs' initial gaps and
+        margins and the platens' gaps are read again, and for the exact method the apart spring's
+        load at them, -T^T J g0, moves by -T^T J (g0_new - g0_old) (J does not depend on g). Where
+        the yarns flatten, their relaxed thickness must be the one the problem was built with (the
+        compaction law and the packing read it)."""
+        if mould is not None and self.mould is None:
+            raise ValueError("renew: a mould for a problem built without one: build a new one")
+        if any(not np.array_equal(f.t0.x.array, law_thickness(self.ms.yarns[f.yarn])) for f in self.flattening):
+            raise ValueError("renew: the yarns that flatten changed thickness: build a new problem")
         old = [p.g0 for p in self.pairs]
         self.pairs = [replace(p, g0=g0, margin=margin) for p, (g0, margin) in
                       zip(self.pairs, (initial_gap(self.ms, p.upper, p.lower, options.min_gap) for p in self.pairs))]
         if self.exact:
             self._add_contact(self.b_fixed, [-residual_values(p, p.g0 - g) for p, g in zip(self.pairs, old)])
-        if self.nodes is not None:  # the same nodes of the same pairs (no platens)
-            g0 = np.concatenate([p.g0 - p.margin for p in self.pairs] + [np.zeros(0)])
-            at = np.concatenate([[0], np.cumsum([len(p.g0) for p in self.pairs])])[self.nodes.pair] + self.nodes.at
-            self.nodes = replace(self.nodes, g0=g0[at])
+        if self.nodes is not None:  # the same nodes of the same pairs, platens and packing
+            g0 = self.nodes.g0.copy()
+            paired = self.nodes.pair >= 0
+            gaps = np.concatenate([p.g0 - p.margin for p in self.pairs] + [np.zeros(0)])
+            first = np.concatenate([[0], np.cumsum([len(p.g0) for p in self.pairs])])
+            g0[paired] = gaps[first[self.nodes.pair[paired]] + self.nodes.at[paired]]
+            if self.mould is not None:
+                self.mould = self.mould if mould is None else mould
+                images = self.numbering.image_dofs(self.ms)
+                g0[self.nodes.pair == NONE] = mould_rows(self.ms, self.numbering, images, self.mould,
+                                                         options.min_gap).g0
+            self.nodes = replace(self.nodes, g0=g0)
         self.options = options
         self.factorisations, self._convex_checked = 0, -1
 
@@ -278,7 +295,10 @@ class ContactProblem:
         if self.flattening:
             assert at is not None  # the compaction energy's Hessian depends on the thickness
             hessian = hessian_values(self.flattening, at)
-        self.pattern.fill(self.K, self._variable(jac, c_nodes, hessian), pin=self.pin)
+        if self.basis is None:
+            self.pattern.fill(self.K, self._variable(jac, c_nodes, hessian), pin=self.pin)
+        else:  # a mould holds the translation: nothing is pinned
+            self.basis.fill(self.K, self.pattern.values(self._variable(jac, c_nodes, hessian)))
         self.K.setOption(PETSc.Mat.Option.SPD, True)  # pinned: MUMPS' SPD LDL^T (SYM = 1); new values reset it
         self.solver.factor(self.K)
         self.factorisations += 1
@@ -295,9 +315,18 @@ class ContactProblem:
     def solve(self, rhs: PETSc.Vec, x: PETSc.Vec, what: str) -> None:
         """x = K^-1 rhs with K's last factorisation (newton_matrix), checked: converged, finite, no
         null pivots, and the inertia of a convex energy (no negative pivot). The pinned unknown
-        does not move (its entry of rhs is set to 0)."""
+        does not move (its entry of rhs is set to 0). Where the yarns flatten, K is T^T K T in
+        (w, dt) and x = T (T^T K T)^-1 T^T rhs (basis.py)."""
         self.hold_pin(rhs)
-        self.solver.solve(rhs, x)
+        if self.basis is None:
+            self.solver.solve(rhs, x)
+        else:
+            r = rhs.duplicate()
+            self.basis.transpose(rhs, r)
+            self.solver.solve(r, x)
+            x.copy(r)
+            self.basis.apply(r, x)
+            r.destroy()
         ksp = self.solver.ksp
         reason, nulls, negative = ksp.getConvergedReason(), null_pivots(ksp), negative_pivots(ksp)
         # a semi-definite matrix (Et = 0: a yarn touching nothing is held by nothing) factorised
