@@ -256,6 +256,22 @@ def test_two_plies_nest_when_moved_by_half_a_spacing_and_not_in_register():
 
 
 @pytest.mark.mpi
+def test_texgens_own_stack_of_plies_nests_through_the_contact_solve(reference_dir):
+    # TexGen's CTextileLayered (plain_layered.tg3: two plies of plain.tg3, the second moved by
+    # (1.0, 0.5) mm and dropped by NestLayers, interpenetrating) is read as a stack of 2 plies and
+    # solved like any fabric: the check passes, and out of register the plies are no thicker than
+    # two plies in register, each as thick as one ply alone (1 %: the rays' sampling)
+    from textile_fenicsx.tg3 import read_tg3
+
+    models = reference_dir / "models"
+    single = run(read_tg3(models / "plain.tg3"), Settings(MeshOptions(0.5))).metrics["after"]["thickness"]
+    stacked = run(read_tg3(models / "plain_layered.tg3"), Settings(MeshOptions(0.5)))
+    assert stacked.verdict["passed"], stacked.verdict["failures"]
+    assert stacked.textile.plies == 2
+    assert stacked.metrics["after"]["thickness"] <= 2 * single * 1.01
+
+
+@pytest.mark.mpi
 def test_a_nested_stack_is_pressed_as_one_fabric():
     from textile_fenicsx.plies import stack
 

@@ -210,6 +210,40 @@ def test_bad_tg3_is_named(edit, message, satin_tg3, tmp_path):
 
 
 @pytest.mark.serial
+def test_texgens_layered_textile_is_read_as_a_stack_of_plies(reference_dir):
+    # plain_layered.tg3 (its .api.txt): TexGen's CTextileLayered of two plies of plain.tg3's fabric,
+    # the second moved by (1.0, 0.5) mm in the plane (its <Offset>) and dropped onto the first by
+    # NestLayers. Read as a stack: 2 plies, the yarns ply by ply, each ply's yarns those of
+    # plain.tg3 moved rigidly (the same dz for every yarn of the ply)
+    plain = read_tg3(reference_dir / "models" / "plain.tg3")
+    stack = read_tg3(reference_dir / "models" / "plain_layered.tg3")
+    assert stack.plies == 2 and len(stack.yarns) == 2 * len(plain.yarns)
+    moves = [y.nodes - p.nodes for y, p in zip(stack.yarns, plain.yarns + plain.yarns)]
+    assert all(np.allclose(m, m[0], atol=1e-12) for m in moves)
+    assert all(np.allclose(m[0], 0.0, atol=1e-12) for m in moves[:4])
+    second = np.array([m[0] for m in moves[4:]])
+    assert np.allclose(second[:, :2], [1.0, 0.5], atol=1e-12) and np.ptp(second[:, 2]) < 1e-12
+    assert 0.0 < second[0, 2] < 0.66  # nested: lower than one domain height up
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s.replace('<Yarn yarnindex="5" />', '<Yarn yarnindex="3" />', 1),
+     "must list every yarn once (missing [5], not a yarn [], in two layers [3])"),
+    (lambda s: s.replace('<Offset value="1.000000000000e+00, 5.000000000000e-01" />', "", 1),
+     "1 <Offset> elements for 2 layers"),
+    (lambda s: s.replace('<Yarn yarnindex="4" />', '<Ply yarnindex="4" />', 1), "<Layer> 2: unsupported element <Ply>"),
+    (lambda s: s.replace('type="CTextileLayered"', 'type="CTextile"', 1), "unsupported element <Offset>"),
+])
+def test_a_bad_layered_textile_is_named(edit, message, reference_dir, tmp_path):
+    path = tmp_path / "bad.tg3"
+    path.write_text(edit((reference_dir / "models" / "plain_layered.tg3").read_text()))
+    with pytest.raises(FormatError) as err:
+        read_tg3(path)
+    assert message in str(err.value)
+
+
+@pytest.mark.serial
 @pytest.mark.parametrize("text, message", [
     ("[weave\ntype='plain'", "malformed TOML"),
     ("[weave]\ntype = 'plain'\nspacng = 2.0\n", "spacng"),

@@ -49,6 +49,8 @@ INTERPOLATION_IN = {"CInterpolationBezier": "bezier", "CInterpolationCubic": "cu
 INTERPOLATION_OUT = {v: k for k, v in INTERPOLATION_IN.items()}
 # Children that carry no geometry of the yarn or describe how a weave textile built its yarns.
 IGNORED_YARN_CHILDREN = {"FibreDistribution", "SectionMesh", "SlaveNode", "Mesh"}
+# TexGen's stack of plies (AddLayer, NestLayers): its yarns are read ply by ply (Textile.plies)
+LAYERED = "CTextileLayered"
 # TexGen's 3D weave classes, whose FabricThickness is the thickness the preform is woven to (the
 # default mould of the solve); a 2D weave's is its yarns' nominal stack, which the solve may exceed
 WOVEN_TO_THICKNESS = {"CTextile3DWeave", "CTextileOrthogonal", "CTextileLayerToLayer", "CTextileAngleInterlock"}
@@ -293,8 +295,9 @@ def read_tg3(path, textile: str | None = None) -> Textile:
             raise FormatError(f"{path}: no textile named {textile!r}")
     el = textiles[0]
     where = f"{path.name}: Textile {el.get('name', '?')!r} ({el.get('type', '?')})"
+    layered = el.get("type") == LAYERED
     for child in el:
-        if child.tag not in {"Domain", "Yarn"} | IGNORED_TEXTILE_CHILDREN:
+        if child.tag not in {"Domain", "Yarn"} | IGNORED_TEXTILE_CHILDREN | ({"Offset"} if layered else set()):
             raise FormatError(f"{where}: unsupported element <{child.tag}>")
     yarn_els = el.findall("Yarn")
     check_many(f"{where}: Yarn elements", len(yarn_els), MAX_YARNS, FormatError)
@@ -309,6 +312,11 @@ def read_tg3(path, textile: str | None = None) -> Textile:
             raise FormatError(f"{where}: <Yarn index={y.get('index')!r}> is not a whole number") from None
 
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
+    plies = 1
+    if layered:  # TexGen's stack of plies: the yarns in place already, listed ply by ply
+        layers = _layers(el, [index(y) for y in yarn_els], where)
+        at = {i: k for k, i in enumerate(sorted(index(y) for y in yarn_els))}
+        yarns, plies = [yarns[at[i]] for layer in layers for i in layer], len(layers)
     # the textile's fibre data: for yarns without their own fibre area (TexGen's CYarn takes the
     # textile's fibre area where its own data gives none, e.g. a fibre count without a diameter)
     default = fibre_data.from_tg3(el, where)
@@ -318,13 +326,41 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     cell = _domain(el, yarns, where)
     try:
         woven_to = _woven_to(el, where)
-        model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to)
+        model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to, plies=plies)
         model.check_size()
         return model
     except FormatError:
         raise
     except TextileError as e:  # the yarns do not make a periodic textile in this domain, or too large
         raise FormatError(f"{where}: {e}") from None
+
+
+def _layers(el, indices: list[int], where: str) -> list[list[int]]:
+    """A CTextileLayered's plies: each <Layer>'s yarn indices (every yarn in exactly one). Its
+    <Offset> elements (one per layer) record how far AddLayer moved each ply in the plane; the
+    yarns are saved moved, so they are checked, not applied."""
+    layers = []
+    for k, layer in enumerate(el.findall("Layer"), start=1):
+        members = []
+        for y in layer:
+            if y.tag != "Yarn":
+                raise FormatError(f"{where}: <Layer> {k}: unsupported element <{y.tag}>")
+            members.append(_attr(y, "yarnindex", f"{where}: <Layer> {k}", kind=int))
+        if not members:
+            raise FormatError(f"{where}: <Layer> {k} holds no yarns")
+        layers.append(members)
+    listed = sorted(i for layer in layers for i in layer)
+    if listed != sorted(indices):
+        missing, extra = sorted(set(indices) - set(listed)), sorted(set(listed) - set(indices))
+        repeated = sorted({i for i in listed if listed.count(i) > 1})
+        raise FormatError(f"{where}: the <Layer> elements must list every yarn once (missing {missing}, not a yarn "
+                          f"{extra}, in two layers {repeated})")
+    offsets = el.findall("Offset")
+    if offsets and len(offsets) != len(layers):
+        raise FormatError(f"{where}: {len(offsets)} <Offset> elements for {len(layers)} layers")
+    for k, o in enumerate(offsets, start=1):
+        _floats(o.get("value"), f"{where}: <Offset> {k}", 2)
+    return layers
 
 
 def _woven_to(el, where: str) -> float | None:
