@@ -6,6 +6,7 @@ One module per idea:
 - pattern: the combined matrix's fixed CSR pattern (FixedPattern);
 - contact: contact pairs as data, their forms derived from the contact energy;
 - flattening: yarns whose thickness is an unknown, held by their compaction law;
+- basis: their Newton systems solved in mid-height and thickness change (w, dt);
 - problem: ContactProblem, the assembled energy (owns K, the vectors and the direct solver);
 - newton: the iterations (exact contact, the default; the paper's penalty);
 - linear: PETSc options as dicts, the direct solver and its checks.
