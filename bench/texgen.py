@@ -243,6 +243,7 @@ def measure_textile(tc, tex, name, n):
     box_volume = float(np.prod(hi - lo))
     return dict(
         textile=name, type=tex.GetType(), n_yarns=nyarn,
+        layers=tex.GetLayeredTextile().GetNumLayers() if tex.GetType() == "CTextileLayered" else None,
         domain_box=[lo.tolist(), hi.tolist()], domain_volume=box_volume,
         grid=dict(n=[n, n], h=h.tolist(), method="vertical rays through TexGen's yarn surfaces",
                   lines_redone_with_classifier=n_odd),

@@ -232,6 +232,18 @@ def test_compaction_input_errors_exit_2(tmp_path):
     bad = cli("plain", "--plies", 0)
     assert bad.returncode == 2 and "plies" in bad.stderr
     assert not (tmp_path / "out").exists()
+    # `build --plies` writes the stack: its models read back as 2 plies (the .tg3 as TexGen's
+    # CTextileLayered), and a bad offset is named there too
+    built = subprocess.run([sys.executable, "-m", "textile_fenicsx", "build", "plain", "--plies", "2", "--ply-offsets",
+                            "0,0", "1,1", "--no-picture", "--out", tmp_path / "built"], capture_output=True, text=True,
+                           timeout=300)
+    assert built.returncode == 0, built.stderr
+    from textile_fenicsx.config import load_model
+
+    assert [load_model(tmp_path / "built" / f"plain.{ext}").plies for ext in ("json", "tg3")] == [2, 2]
+    bad = subprocess.run([sys.executable, "-m", "textile_fenicsx", "build", "plain", "--plies", "2", "--ply-offsets",
+                          "0,0", "--out", tmp_path / "bad"], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and "give 2 in-plane offsets" in bad.stderr and not (tmp_path / "bad").exists()
 
 
 # ---- plies (plies.py) ----

@@ -227,6 +227,34 @@ def test_texgens_layered_textile_is_read_as_a_stack_of_plies(reference_dir):
 
 
 @pytest.mark.serial
+def test_a_stack_of_plies_reads_back_as_the_same_stack(reference_dir, tmp_path):
+    # a stack written as our JSON (`plies`: the yarns of each ply) and as TexGen's CTextileLayered
+    # (<Layer> yarn lists) reads back with its plies; plies of different sizes too (TexGen's
+    # plain_layered.tg3 with yarn 4 moved from the second ply's <Layer> to the first's)
+    from textile_fenicsx.plies import ply_of, stack
+
+    equal = stack(build("plain"), 3, [(0, 0), (1.0, 0.0), (0.5, 1.5)])
+    tree = ET.parse(reference_dir / "models" / "plain_layered.tg3")
+    first, second = tree.getroot().find("Textile").findall("Layer")
+    yarn = second.find("Yarn")
+    second.remove(yarn)
+    first.append(yarn)
+    tree.write(tmp_path / "unequal.tg3")
+    unequal = read_tg3(tmp_path / "unequal.tg3")
+    assert unequal.plies == 2 and unequal.ply_sizes == (5, 3) and ply_of(unequal) == [0] * 5 + [1] * 3
+    for model in (equal, unequal):
+        for path in (save_model(model, tmp_path / "m.json"), write_tg3(model, tmp_path / "m.tg3")):
+            back = load_model(path)
+            assert back.plies == model.plies and ply_of(back) == ply_of(model), path
+            assert all(np.allclose(a.nodes, b.nodes, atol=1e-12) for a, b in zip(back.yarns, model.yarns))
+    with pytest.raises(TextileError, match=r"3 plies of \[2, 2, 2\] yarns do not hold its 8 yarns"):
+        Textile(equal.cell, equal.yarns[:8], plies=3)
+    (tmp_path / "bad.json").write_text((tmp_path / "m.json").read_text().replace('"plies":[5,3]', '"plies":[5,4]'))
+    with pytest.raises(FormatError, match=r"2 plies of \[5, 4\] yarns do not hold its 8 yarns"):
+        load_model(tmp_path / "bad.json")
+
+
+@pytest.mark.serial
 @pytest.mark.parametrize("edit, message", [
     (lambda s: s.replace('<Yarn yarnindex="5" />', '<Yarn yarnindex="3" />', 1),
      "must list every yarn once (missing [5], not a yarn [], in two layers [3])"),

@@ -70,6 +70,17 @@ def _report_command(subparsers: Subparsers) -> None:
     p.set_defaults(run=commands.report)
 
 
+def _plies_arguments(p: argparse.ArgumentParser) -> None:
+    """--plies N, --ply-offsets, --ply-seed (solve, build)."""
+    p.add_argument("--plies", type=int, default=1, metavar="N",
+                   help="stack N plies of the fabric in one cell, ply k moved by its offset in the plane and by k "
+                   "times the fabric's thickness up; they nest by the same contact solve (README, Compaction)")
+    p.add_argument("--ply-offsets", nargs="+", metavar="DX,DY",
+                   help="with --plies N: the N plies' in-plane offsets [mm] (default: random in the cell, "
+                   "--ply-seed; the first ply in place)")
+    p.add_argument("--ply-seed", type=int, default=0, metavar="S", help="with --plies: the random offsets' seed (0)")
+
+
 def _build_command(subparsers: Subparsers) -> None:
     """`build NAME`: a named weave written as model, surfaces and picture."""
     p = subparsers.add_parser(
@@ -94,6 +105,7 @@ def _build_command(subparsers: Subparsers) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="any other builder option, e.g. --set weft_width=2.2 (orthogonal: warp_*, weft_*, "
                    "binder_* spacing/width/height/power, warp_layers, n_warp_stacks, n_weft_columns)")
+    _plies_arguments(p)
     _repeat_argument(p)
     p.add_argument("--no-picture", action="store_true", help="skip the PNG")
     p.set_defaults(run=commands.build)
@@ -174,13 +186,7 @@ def _solve_command(subparsers: Subparsers) -> None:
                    help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
                    "the thickness a 3D weave is woven to (TexGen's FabricThickness), none for other fabrics")
-    p.add_argument("--plies", type=int, default=1, metavar="N",
-                   help="stack N plies of the fabric in one cell, ply k moved by its offset in the plane and by k "
-                   "times the fabric's thickness up; they nest by the same contact solve (README, Compaction)")
-    p.add_argument("--ply-offsets", nargs="+", metavar="DX,DY",
-                   help="with --plies N: the N plies' in-plane offsets [mm] (default: random in the cell, "
-                   "--ply-seed; the first ply in place)")
-    p.add_argument("--ply-seed", type=int, default=0, metavar="S", help="with --plies: the random offsets' seed (0)")
+    _plies_arguments(p)
     p.add_argument("--compaction", type=float, metavar="K",
                    help="press the relaxed fabric further, its yarns flattening by Van Wyk's law p = K (phi^3 - "
                    "phi0^3), K = k E_f [MPa]: to --mould T (now also below the relaxed stack) or to --vf V "

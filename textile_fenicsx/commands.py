@@ -86,7 +86,7 @@ def build(args) -> int:
     except TypeError as e:
         raise TextileError(f"build {args.name}: {e}") from None
     textile.check_size()
-    textile = _repeated(textile, args)
+    textile = _repeated(_stacked(textile, args), args)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     start = time.perf_counter()

@@ -28,8 +28,9 @@ and (lenticular) distortion, (power_ellipse) power and x_offset, (polygon) point
 one per division, where a piece may also be {type = "flat", width = w} (no height).
 A top-level `name` and `[resolution]` (spacing, section_points, per_segment) are optional. Fibre data,
 `fibres = {count = 12000, diameter = 0.007}` (also area [mm^2], density [g/cm^3], linear_density
-[tex]: fibres.Fibres), may be given per yarn, or once at the top level for every yarn without its own. Unknown keys are
-errors naming the key, so a typo never passes silently.
+[tex]: fibres.Fibres), may be given per yarn, or once at the top level for every yarn without its own.
+A stack of plies (plies.stack) has `plies = [n1, n2, ...]` at the top level: the yarns of each ply,
+which come ply by ply. Unknown keys are errors naming the key, so a typo never passes silently.
 """
 
 import json
@@ -234,7 +235,7 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     """A Textile from a parsed TOML/JSON description (see the module docstring)."""
     from textile_fenicsx.weaves import build
 
-    _keys(d, where, {"name", "weave", "cell", "yarns", "resolution", "fibres"})
+    _keys(d, where, {"name", "weave", "cell", "yarns", "resolution", "fibres", "plies"})
     default_fibres = fibre_data.from_dict(d["fibres"], f"{where}.fibres") if "fibres" in d else None
     resolution = Resolution()
     if "resolution" in d:
@@ -278,7 +279,11 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     check_many(f"{where}.yarns", len(d["yarns"]), MAX_YARNS, FormatError)
     yarns = [yarn_from_dict(y, f"{where}.yarns[{k}]") for k, y in enumerate(d["yarns"])]
     try:
-        textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution)
+        sizes = d.get("plies")
+        if sizes is not None and (not isinstance(sizes, list) or not all(isinstance(n, int) for n in sizes)):
+            raise FormatError(f"{where}.plies: expected a list of yarn counts, one per ply, got {sizes!r}")
+        textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution,
+                          plies=len(sizes) if sizes else 1, ply_sizes=tuple(sizes) if sizes else None)
         _give_fibres(textile, default_fibres)
         textile.check_size()
         return textile
@@ -305,7 +310,16 @@ def textile_to_dict(t: Textile) -> dict:
     return {"name": t.name, "cell": {k: (float(v) if not isinstance(v, (list, bool)) else v) for k, v in cell.items()},
             "resolution": {"spacing": t.resolution.spacing, "section_points": t.resolution.section_points,
                            "per_segment": t.resolution.per_segment},
-            "yarns": [yarn_to_dict(y) for y in t.yarns]}
+            "yarns": [yarn_to_dict(y) for y in t.yarns]} | _plies_to_dict(t)
+
+
+def _plies_to_dict(t: Textile) -> dict:
+    """A stack's plies: the yarns of each, ply by ply (absent for one ply)."""
+    if t.plies == 1:
+        return {}
+    from textile_fenicsx.plies import ply_of
+
+    return {"plies": np.bincount(ply_of(t)).tolist()}
 
 
 def load_model(path) -> Textile:

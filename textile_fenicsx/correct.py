@@ -454,7 +454,7 @@ def corrected_textile(textile: Textile, w: list, spacing: float, n_points: int =
     resolution = replace(textile.resolution, spacing=max(textile.resolution.spacing, spacing),
                          section_points=n_points)
     corrected = Textile(replace(c, z_range=z_range), yarns, name=f"{textile.name}_corrected", resolution=resolution,
-                        plies=textile.plies)
+                        plies=textile.plies, ply_sizes=textile.ply_sizes)
     readable(corrected)
     return corrected
 

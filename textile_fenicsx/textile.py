@@ -107,7 +107,8 @@ class Textile:
     the unit cell's repeated; None otherwise. thickness: the thickness the fabric is woven to [mm],
     where its maker states one (a 3D weave's: TexGen's FabricThickness, our orthogonal builder's),
     the default mould of the solve (pipeline.Settings.mould); None otherwise. plies: how many plies
-    of one fabric it stacks (plies.stack: its yarns come ply by ply), 1 otherwise."""
+    it stacks (plies.stack, TexGen's CTextileLayered: its yarns come ply by ply), 1 otherwise;
+    ply_sizes: the yarns of each ply, where they differ (None: as many in each)."""
 
     cell: Cell
     yarns: list = field(default_factory=list)
@@ -116,10 +117,15 @@ class Textile:
     tiling: Tiling | None = None
     thickness: float | None = None
     plies: int = 1
+    ply_sizes: tuple[int, ...] | None = None
 
     def __post_init__(self):
         if not self.yarns:
             raise TextileError(f"textile {self.name!r} has no yarns")
+        sizes = self.ply_sizes or (len(self.yarns) // self.plies,) * self.plies
+        if self.plies < 1 or len(sizes) != self.plies or min(sizes) < 1 or sum(sizes) != len(self.yarns):
+            raise TextileError(f"textile {self.name!r}: {self.plies} plies of {list(sizes)} yarns do not hold its "
+                               f"{len(self.yarns)} yarns")
         if self.thickness is not None:
             limits.check_length(f"textile {self.name!r}: thickness", self.thickness)
         limits.check_many(f"textile {self.name!r}: yarns", len(self.yarns), limits.MAX_YARNS)

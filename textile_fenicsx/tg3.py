@@ -312,11 +312,12 @@ def read_tg3(path, textile: str | None = None) -> Textile:
             raise FormatError(f"{where}: <Yarn index={y.get('index')!r}> is not a whole number") from None
 
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
-    plies = 1
+    plies, sizes = 1, None
     if layered:  # TexGen's stack of plies: the yarns in place already, listed ply by ply
         layers = _layers(el, [index(y) for y in yarn_els], where)
         at = {i: k for k, i in enumerate(sorted(index(y) for y in yarn_els))}
         yarns, plies = [yarns[at[i]] for layer in layers for i in layer], len(layers)
+        sizes = tuple(len(layer) for layer in layers) if len({len(layer) for layer in layers}) > 1 else None
     # the textile's fibre data: for yarns without their own fibre area (TexGen's CYarn takes the
     # textile's fibre area where its own data gives none, e.g. a fibre count without a diameter)
     default = fibre_data.from_tg3(el, where)
@@ -326,7 +327,8 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     cell = _domain(el, yarns, where)
     try:
         woven_to = _woven_to(el, where)
-        model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to, plies=plies)
+        model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to, plies=plies,
+                        ply_sizes=sizes)
         model.check_size()
         return model
     except FormatError:
@@ -418,9 +420,11 @@ def _section_points_for(yarn: Yarn) -> int:
 
 
 def tg3_tree(textile: Textile) -> ET.ElementTree:
-    """The XML tree of a plain CTextile holding the textile's yarns as they are."""
+    """The XML tree of a plain CTextile holding the textile's yarns as they are; a stack of plies
+    as TexGen's CTextileLayered (its yarns in place, each ply's listed in a <Layer>)."""
     root = ET.Element("TexGenModel", version="3.14.0")
-    tex = ET.SubElement(root, "Textile", name=textile.name, type="CTextile", GeometryScale="mm")
+    tex = ET.SubElement(root, "Textile", name=textile.name, type="CTextile" if textile.plies == 1 else LAYERED,
+                        GeometryScale="mm")
     c = textile.cell
     z0, z1 = c.z_range if c.z_range is not None else _z_extent(textile)
     dom = ET.SubElement(tex, "Domain", type="CDomainPlanes")
@@ -465,6 +469,15 @@ def tg3_tree(textile: Textile) -> ET.ElementTree:
                 node.set("Up", _num(y.ups[k]))
             if y.angles is not None:
                 node.set("Angle", _num(y.angles[k]))
+    if textile.plies > 1:
+        from textile_fenicsx.plies import ply_of
+
+        tex.set("Resolution", "40")
+        ply = np.array(ply_of(textile))
+        for k in range(textile.plies):
+            layer = ET.SubElement(tex, "Layer")
+            for i in np.flatnonzero(ply == k):
+                ET.SubElement(layer, "Yarn", yarnindex=str(i))
     ET.indent(root, space="    ")
     return ET.ElementTree(root)
 
