@@ -122,8 +122,10 @@ class Textile:
     def __post_init__(self):
         if not self.yarns:
             raise TextileError(f"textile {self.name!r} has no yarns")
+        if not isinstance(self.plies, (int, np.integer)) or self.plies < 1:
+            raise TextileError(f"textile {self.name!r}: plies must be a whole number >= 1, got {self.plies!r}")
         sizes = self.ply_sizes or (len(self.yarns) // self.plies,) * self.plies
-        if self.plies < 1 or len(sizes) != self.plies or min(sizes) < 1 or sum(sizes) != len(self.yarns):
+        if len(sizes) != self.plies or min(sizes) < 1 or sum(sizes) != len(self.yarns):
             raise TextileError(f"textile {self.name!r}: {self.plies} plies of {list(sizes)} yarns do not hold its "
                                f"{len(self.yarns)} yarns")
         if self.thickness is not None:
