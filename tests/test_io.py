@@ -230,18 +230,28 @@ def test_texgens_layered_textile_is_read_as_a_stack_of_plies(reference_dir):
 def test_a_stack_of_plies_reads_back_as_the_same_stack(reference_dir, tmp_path):
     # a stack written as our JSON (`plies`: the yarns of each ply) and as TexGen's CTextileLayered
     # (<Layer> yarn lists) reads back with its plies; plies of different sizes too (TexGen's
-    # plain_layered.tg3 with yarn 4 moved from the second ply's <Layer> to the first's)
+    # plain_layered.tg3 with yarn 0 moved from the first ply's <Layer> to the end of the second's:
+    # the yarns are then read in the layers' order, 1-7 then 0)
     from textile_fenicsx.plies import ply_of, stack
 
     equal = stack(build("plain"), 3, [(0, 0), (1.0, 0.0), (0.5, 1.5)])
+    layered = read_tg3(reference_dir / "models" / "plain_layered.tg3")
     tree = ET.parse(reference_dir / "models" / "plain_layered.tg3")
     first, second = tree.getroot().find("Textile").findall("Layer")
-    yarn = second.find("Yarn")
-    second.remove(yarn)
-    first.append(yarn)
+    yarn = first.find("Yarn")
+    first.remove(yarn)
+    second.append(yarn)
     tree.write(tmp_path / "unequal.tg3")
     unequal = read_tg3(tmp_path / "unequal.tg3")
-    assert unequal.plies == 2 and unequal.ply_sizes == (5, 3) and ply_of(unequal) == [0] * 5 + [1] * 3
+    assert unequal.plies == 2 and unequal.ply_sizes == (3, 5) and ply_of(unequal) == [0] * 3 + [1] * 5
+    order = [1, 2, 3, 4, 5, 6, 7, 0]
+    assert all(np.array_equal(a.nodes, layered.yarns[i].nodes) for a, i in zip(unequal.yarns, order))
+    # a coupon of a stack is a stack: each ply's yarns' copies, ply by ply
+    from textile_fenicsx.coupon import tile
+
+    coupon = tile(unequal, 2, 1)
+    assert coupon.plies == 2 and ply_of(coupon) == sorted(ply_of(coupon)) and len(coupon.yarns) > 8
+    assert all(ply_of(unequal)[i] == k for i, k in zip(coupon.tiling.source, ply_of(coupon)))
     for model in (equal, unequal):
         for path in (save_model(model, tmp_path / "m.json"), write_tg3(model, tmp_path / "m.tg3")):
             back = load_model(path)
@@ -249,15 +259,23 @@ def test_a_stack_of_plies_reads_back_as_the_same_stack(reference_dir, tmp_path):
             assert all(np.allclose(a.nodes, b.nodes, atol=1e-12) for a, b in zip(back.yarns, model.yarns))
     with pytest.raises(TextileError, match=r"3 plies of \[2, 2, 2\] yarns do not hold its 8 yarns"):
         Textile(equal.cell, equal.yarns[:8], plies=3)
-    (tmp_path / "bad.json").write_text((tmp_path / "m.json").read_text().replace('"plies":[5,3]', '"plies":[5,4]'))
-    with pytest.raises(FormatError, match=r"2 plies of \[5, 4\] yarns do not hold its 8 yarns"):
-        load_model(tmp_path / "bad.json")
+    for sizes, message in (("[3,4]", r"2 plies of \[3, 4\] yarns do not hold its 8 yarns"),
+                           ("[3,3]", r"2 plies of \[3, 3\] yarns do not hold its 8 yarns"),
+                           ("[]", "expected a list of yarn counts"),
+                           ("[true,7]", "expected a list of yarn counts")):
+        (tmp_path / "bad.json").write_text((tmp_path / "m.json").read_text().replace('"plies":[3,5]',
+                                                                                    f'"plies":{sizes}'))
+        with pytest.raises(FormatError, match=message):
+            load_model(tmp_path / "bad.json")
 
 
 @pytest.mark.serial
 @pytest.mark.parametrize("edit, message", [
     (lambda s: s.replace('<Yarn yarnindex="5" />', '<Yarn yarnindex="3" />', 1),
-     "must list every yarn once (missing [5], not a yarn [], in two layers [3])"),
+     "must list every yarn once (missing [5], not a yarn [], listed more than once [3])"),
+    (lambda s: s.replace('<Yarn yarnindex="5" />', '<Yarn yarnindex="5.7" />', 1),
+     "<Layer> 2: yarnindex='5.7' is not a yarn index"),
+    (lambda s: s.replace('<Yarn index="5"', '<Yarn index="4"', 1), "two <Yarn> elements have the same index [4]"),
     (lambda s: s.replace('<Offset value="1.000000000000e+00, 5.000000000000e-01" />', "", 1),
      "1 <Offset> elements for 2 layers"),
     (lambda s: s.replace('<Yarn yarnindex="4" />', '<Ply yarnindex="4" />', 1), "<Layer> 2: unsupported element <Ply>"),

@@ -280,10 +280,13 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     yarns = [yarn_from_dict(y, f"{where}.yarns[{k}]") for k, y in enumerate(d["yarns"])]
     try:
         sizes = d.get("plies")
-        if sizes is not None and (not isinstance(sizes, list) or not all(isinstance(n, int) for n in sizes)):
+        if sizes is not None and (not isinstance(sizes, list) or not sizes
+                                  or not all(type(n) is int for n in sizes)):  # (a bool is not a count)
             raise FormatError(f"{where}.plies: expected a list of yarn counts, one per ply, got {sizes!r}")
         textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution,
                           plies=len(sizes) if sizes else 1, ply_sizes=tuple(sizes) if sizes else None)
+        if sizes and len(set(sizes)) == 1:  # as many yarns in each ply: as plies.stack makes them
+            textile.ply_sizes = None
         _give_fibres(textile, default_fibres)
         textile.check_size()
         return textile

@@ -105,7 +105,8 @@ def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textil
                 yarns.append(replace(copy, nodes=copy.nodes + shift, repeats=big.repeats.copy()))
                 source.append(index)
     return Textile(big, yarns, name=f"{textile.name}_{nx}x{ny}", resolution=textile.resolution,
-                   tiling=Tiling(textile, nx, ny, tuple(source)), thickness=textile.thickness)
+                   tiling=Tiling(textile, nx, ny, tuple(source)), thickness=textile.thickness,
+                   **_plies(textile, source))
 
 
 def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
@@ -138,7 +139,19 @@ def _free_coupon(textile: Textile, nx: int, ny: int) -> Textile:
                     yarns.append(copy)
                     source.append(index)
     return Textile(box, yarns, name=f"{textile.name}_{nx}x{ny}_free", resolution=textile.resolution,
-                   tiling=Tiling(textile, nx, ny, tuple(source)), thickness=textile.thickness)
+                   tiling=Tiling(textile, nx, ny, tuple(source)), thickness=textile.thickness,
+                   **_plies(textile, source))
+
+
+def _plies(textile: Textile, source: list[int]) -> dict:
+    """A stack's plies in its coupon: the copies come yarn by yarn, so ply by ply as the unit
+    cell's yarns do; each ply has its yarns' copies."""
+    if textile.plies == 1:
+        return {}
+    from textile_fenicsx.plies import ply_of
+
+    sizes = np.bincount(np.asarray(ply_of(textile))[source], minlength=textile.plies)
+    return {"plies": textile.plies, "ply_sizes": None if len(set(sizes)) == 1 else tuple(int(n) for n in sizes)}
 
 
 def _enters(yarn, section_points: int, box: Cell) -> bool:

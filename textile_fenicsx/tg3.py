@@ -314,7 +314,11 @@ def read_tg3(path, textile: str | None = None) -> Textile:
     yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
     plies, sizes = 1, None
     if layered:  # TexGen's stack of plies: the yarns in place already, listed ply by ply
-        layers = _layers(el, [index(y) for y in yarn_els], where)
+        indices = [index(y) for y in yarn_els]
+        if len(set(indices)) != len(indices):
+            raise FormatError(f"{where}: two <Yarn> elements have the same index "
+                              f"{sorted({i for i in indices if indices.count(i) > 1})}")
+        layers = _layers(el, indices, where)
         at = {i: k for k, i in enumerate(sorted(index(y) for y in yarn_els))}
         yarns, plies = [yarns[at[i]] for layer in layers for i in layer], len(layers)
         sizes = tuple(len(layer) for layer in layers) if len({len(layer) for layer in layers}) > 1 else None
@@ -347,7 +351,10 @@ def _layers(el, indices: list[int], where: str) -> list[list[int]]:
         for y in layer:
             if y.tag != "Yarn":
                 raise FormatError(f"{where}: <Layer> {k}: unsupported element <{y.tag}>")
-            members.append(_attr(y, "yarnindex", f"{where}: <Layer> {k}", kind=int))
+            text = y.get("yarnindex")
+            if text is None or not text.strip().isdigit():
+                raise FormatError(f"{where}: <Layer> {k}: yarnindex={text!r} is not a yarn index (a whole number)")
+            members.append(int(text))
         if not members:
             raise FormatError(f"{where}: <Layer> {k} holds no yarns")
         layers.append(members)
@@ -356,7 +363,7 @@ def _layers(el, indices: list[int], where: str) -> list[list[int]]:
         missing, extra = sorted(set(indices) - set(listed)), sorted(set(listed) - set(indices))
         repeated = sorted({i for i in listed if listed.count(i) > 1})
         raise FormatError(f"{where}: the <Layer> elements must list every yarn once (missing {missing}, not a yarn "
-                          f"{extra}, in two layers {repeated})")
+                          f"{extra}, listed more than once {repeated})")
     offsets = el.findall("Offset")
     if offsets and len(offsets) != len(layers):
         raise FormatError(f"{where}: {len(offsets)} <Offset> elements for {len(layers)} layers")

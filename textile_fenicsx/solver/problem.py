@@ -132,6 +132,8 @@ class ContactProblem:
             raise TextileError("a mould needs the exact contact method (its platens are constraints)")
         if compaction is not None and not self.exact:
             raise TextileError("yarns that flatten need the exact contact method (their packing is a constraint)")
+        if compaction is not None and mould is None:
+            raise TextileError("yarns that flatten need a mould: its platens press them (and hold the translation)")
         self.comm = ms.V.mesh.comm
         self.numbering = numbering = Periodicity(ms, 1 if compaction is None else 2)
         pattern = FixedPattern(self.comm, numbering.start, numbering.n_local)
@@ -183,7 +185,8 @@ class ContactProblem:
         compaction law and the packing read it)."""
         if mould is not None and self.mould is None:
             raise ValueError("renew: a mould for a problem built without one: build a new one")
-        if any(not np.array_equal(f.t0.x.array, law_thickness(self.ms.yarns[f.yarn])) for f in self.flattening):
+        changed = [not np.array_equal(f.t0.x.array, law_thickness(self.ms.yarns[f.yarn])) for f in self.flattening]
+        if self.comm.allreduce(any(changed), op=MPI.LOR):  # (law_thickness is collective: every yarn on every rank)
             raise ValueError("renew: the yarns that flatten changed thickness: build a new problem")
         old = [p.g0 for p in self.pairs]
         self.pairs = [replace(p, g0=g0, margin=margin) for p, (g0, margin) in
@@ -351,7 +354,8 @@ class ContactProblem:
         rotating about it: an eigenvalue of 3e-14 of the largest stiffness, one negative pivot).
         More than ROUND_OFF_PIVOTS is an error; so is an eigenvalue nearest zero (inverse iteration
         with the factor, the Rayleigh quotient of the true matrix) below -1e-10 of the largest
-        diagonal entry."""
+        diagonal entry. Where the yarns flatten, the matrix is T^T K T (basis.py): congruent to K,
+        with its signs, on a scale of its own."""
         v, y, Kv = self.b_fixed.duplicate(), self.b_fixed.duplicate(), self.b_fixed.duplicate()
         first, end = v.getOwnershipRange()
         v.getArray()[:] = 1.0 + np.sin(np.arange(first, end))  # the same start on any partition
