@@ -233,15 +233,10 @@ def corrected_yarn(textile: Textile, i: int, w, spacing: float, n_points: int = 
     # changes the area normal to the path where the slope changes (by cos(new) / cos(old)), and
     # the vertical shift varies over a tilted section. Where the area would grow the section
     # narrows; where it would shrink it thickens (widening would raise the thin flanks over the
-    # neighbours, thickening spends the margin the exact contact keeps at the nodes). A flattened
-    # section is not thickened: the law set its fibres' thickness with the plate's, and the margins
-    # the relaxed solve measured are no longer there to spend (thickened by up to 1.7 %, a jammed
-    # satin pressed to Vf 0.5 overlapped 0.0053 mm; not, 0 and its volume within 0.08 % of its plate's)
+    # neighbours, thickening spends the margin the exact contact keeps at the nodes)
     kept = _areas(u0, v0) if flat is None else \
         _areas(u0, v0 + flat_pts * up0[:, None, 2])  # the flattened section's
     ratio = (kept / _areas(u0, v_new))[:, None]
-    if flat is not None:
-        ratio = np.minimum(ratio, 1.0)
     u_new, v_new = u0 * np.minimum(1.0, ratio), v_new * np.maximum(1.0, ratio)
     new_pos, polys = _centred(probe, new_pos, np.stack((u_new, v_new), axis=-1), yarn.periodic)
     tol = SECTION_TOL * _heights(polys).min() if section_tol is None else section_tol
