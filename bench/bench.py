@@ -56,6 +56,18 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+def _peak_mb() -> float:
+    """The peak resident set of this process's own memory since it started [MB]: VmHWM (Linux
+    /proc), which exec resets. Not getrusage's ru_maxrss: a process started from a large one (a
+    pytest session that has run many tests) reports its parent's size at the fork as its own peak
+    (a 0.62 GB bench case read 0.86 GB from a long test session)."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def one_case(name: str) -> dict:
     """Run one case in this process (collective), stage by stage: the pipeline as `solve` runs it
     (its stages reported by pipeline.run's on_stage), then the metrics and the core outputs;
@@ -116,7 +128,7 @@ def one_case(name: str) -> dict:
 
         shutil.rmtree(out, ignore_errors=True)
     ms, solution = result.midsurfaces, result.solution
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = _peak_mb()
     core = ("model", "mesh", "midsurfaces", "assemble", "solve", "correct", "metrics", "export")
     return {
         "case": name, "ranks": comm.size, "seed": seed, "repeats": repeats, "method": method,
