@@ -285,8 +285,6 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
             raise FormatError(f"{where}.plies: expected a list of yarn counts, one per ply, got {sizes!r}")
         textile = Textile(cell, yarns, name=str(d.get("name", "textile")), resolution=resolution,
                           plies=len(sizes) if sizes else 1, ply_sizes=tuple(sizes) if sizes else None)
-        if sizes and len(set(sizes)) == 1:  # as many yarns in each ply: as plies.stack makes them
-            textile.ply_sizes = None
         _give_fibres(textile, default_fibres)
         textile.check_size()
         return textile
@@ -318,11 +316,7 @@ def textile_to_dict(t: Textile) -> dict:
 
 def _plies_to_dict(t: Textile) -> dict:
     """A stack's plies: the yarns of each, ply by ply (absent for one ply)."""
-    if t.plies == 1:
-        return {}
-    from textile_fenicsx.plies import ply_of
-
-    return {"plies": np.bincount(ply_of(t)).tolist()}
+    return {} if t.plies == 1 else {"plies": list(t.yarns_per_ply())}
 
 
 def load_model(path) -> Textile:

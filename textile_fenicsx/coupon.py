@@ -151,7 +151,7 @@ def _plies(textile: Textile, source: list[int]) -> dict:
     from textile_fenicsx.plies import ply_of
 
     sizes = np.bincount(np.asarray(ply_of(textile))[source], minlength=textile.plies)
-    return {"plies": textile.plies, "ply_sizes": None if len(set(sizes)) == 1 else tuple(int(n) for n in sizes)}
+    return {"plies": textile.plies, "ply_sizes": tuple(int(n) for n in sizes)}
 
 
 def _enters(yarn, section_points: int, box: Cell) -> bool:

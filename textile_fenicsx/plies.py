@@ -67,5 +67,4 @@ def stack(textile: Textile, plies: int, offsets: list | None = None) -> Textile:
 
 def ply_of(stacked: Textile) -> list[int]:
     """The ply (0-based) of each yarn of a stack (the yarns come ply by ply)."""
-    sizes = stacked.ply_sizes or (len(stacked.yarns) // stacked.plies,) * stacked.plies
-    return [k for k, n in enumerate(sizes) for _ in range(n)]
+    return [k for k, n in enumerate(stacked.yarns_per_ply()) for _ in range(n)]

@@ -108,7 +108,8 @@ class Textile:
     where its maker states one (a 3D weave's: TexGen's FabricThickness, our orthogonal builder's),
     the default mould of the solve (pipeline.Settings.mould); None otherwise. plies: how many plies
     it stacks (plies.stack, TexGen's CTextileLayered: its yarns come ply by ply), 1 otherwise;
-    ply_sizes: the yarns of each ply, where they differ (None: as many in each)."""
+    ply_sizes: the yarns of each ply, where they differ (None, which equal sizes become: as many in
+    each; `yarns_per_ply` gives them either way)."""
 
     cell: Cell
     yarns: list = field(default_factory=list)
@@ -124,10 +125,12 @@ class Textile:
             raise TextileError(f"textile {self.name!r} has no yarns")
         if not isinstance(self.plies, (int, np.integer)) or self.plies < 1:
             raise TextileError(f"textile {self.name!r}: plies must be a whole number >= 1, got {self.plies!r}")
-        sizes = self.ply_sizes or (len(self.yarns) // self.plies,) * self.plies
+        sizes = self.yarns_per_ply()
         if len(sizes) != self.plies or min(sizes) < 1 or sum(sizes) != len(self.yarns):
             raise TextileError(f"textile {self.name!r}: {self.plies} plies of {list(sizes)} yarns do not hold its "
                                f"{len(self.yarns)} yarns")
+        if len(set(sizes)) == 1:  # as many yarns in each ply: as plies.stack makes them
+            self.ply_sizes = None
         if self.thickness is not None:
             limits.check_length(f"textile {self.name!r}: thickness", self.thickness)
         limits.check_many(f"textile {self.name!r}: yarns", len(self.yarns), limits.MAX_YARNS)
@@ -139,6 +142,10 @@ class Textile:
             if y.periodic and self.cell.periodic:
                 self._check_closes(y)
         self._triangles = {}
+
+    def yarns_per_ply(self) -> tuple[int, ...]:
+        """How many yarns each ply has, ply by ply (the yarns come ply by ply)."""
+        return tuple(self.ply_sizes) if self.ply_sizes else (len(self.yarns) // self.plies,) * self.plies
 
     def check_size(self) -> None:
         """Refuse a model read from a file or asked for on the command line whose master nodes or

@@ -319,9 +319,9 @@ def read_tg3(path, textile: str | None = None) -> Textile:
             raise FormatError(f"{where}: two <Yarn> elements have the same index "
                               f"{sorted({i for i in indices if indices.count(i) > 1})}")
         layers = _layers(el, indices, where)
-        at = {i: k for k, i in enumerate(sorted(index(y) for y in yarn_els))}
+        at = {i: k for k, i in enumerate(sorted(indices))}  # index -> place among the yarns read
         yarns, plies = [yarns[at[i]] for layer in layers for i in layer], len(layers)
-        sizes = tuple(len(layer) for layer in layers) if len({len(layer) for layer in layers}) > 1 else None
+        sizes = tuple(len(layer) for layer in layers)
     # the textile's fibre data: for yarns without their own fibre area (TexGen's CYarn takes the
     # textile's fibre area where its own data gives none, e.g. a fibre count without a diameter)
     default = fibre_data.from_tg3(el, where)
