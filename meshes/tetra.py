@@ -57,6 +57,8 @@ OPTIMISE = ("Relocate3D", "")
 # How far apart [fraction of the box] the bounding boxes of two faces paired as periodic may be: OCC's
 # boxes of spline faces are loose (the faces are then checked by the mesh's periodicity).
 PAIR_TOLERANCE = 5e-4
+# Times the sections are traced again with twice the points when the surface mesh crosses itself.
+RETRACE = 2
 
 
 @dataclass(frozen=True)
@@ -278,16 +280,68 @@ def _mesh_arrays(phase_of: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.n
     return points[used], inverse.reshape(-1, 4), np.concatenate(phase)
 
 
+def _crossings(phase_of: dict[int, int]) -> tuple[np.ndarray, tuple[int, ...]]:
+    """Where the current gmsh model's surface triangles cross (tetra_checks.surface_crossings),
+    and the phases of the first two crossing triangles (the yarn each bounds, 0 the box)."""
+    import gmsh
+
+    tags, xyz, _ = gmsh.model.mesh.getNodes()
+    index = np.full(int(tags.max()) + 1, -1, np.int64)
+    index[tags.astype(np.int64)] = np.arange(len(tags))
+    triangles, surface = [], []
+    for _, s in gmsh.model.getEntities(2):
+        nodes = gmsh.model.mesh.getElementsByType(2, s)[1]
+        triangles.append(index[nodes.astype(np.int64)].reshape(-1, 3))
+        surface.append(np.full(len(triangles[-1]), s))
+    hits, which = checks.surface_crossings(xyz.reshape(-1, 3), np.concatenate(triangles))
+    sides = tuple(max(phase_of.get(v, 0) for v in gmsh.model.getAdjacencies(2, int(s))[0])
+                  for s in np.concatenate(surface)[which[:1].ravel()])
+    return hits, sides
+
+
 def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
               folder: str):
-    """Build, mesh and read back the model (gmsh initialised). Returns the arrays, box and pairs."""
+    """Build, mesh and read back the model (gmsh initialised, a model current). When the surface
+    mesh crosses itself (two skins that stray into the gap between them), the sections are traced
+    again with twice the points, up to RETRACE times. Returns the arrays, box, pairs and how many
+    times the points were doubled."""
+    import gmsh
+
+    for attempt in range(RETRACE + 1):
+        lo, hi, pairs, phase_of = _surfaces(textile, options, gap, shrink, height, times, folder, 2**attempt)
+        hits, yarns = _crossings(phase_of)
+        if not len(hits):
+            break
+        where = "(" + ", ".join(f"{v:.3f}" for v in hits[0]) + ") mm"
+        names = " and ".join(textile.yarns[k - 1].name if k else "the box" for k in yarns)
+        if attempt == RETRACE:
+            raise MeshError(f"the skins of {names} cross at {where} ({len(hits)} crossings in the surface mesh), "
+                            f"with the sections traced by {2**attempt} x their points: solve with a larger "
+                            "--min-gap, or use --kind voxel")
+        log.warning("tet: the skins of %s cross at %s (%d crossings in the surface mesh): the sections traced again "
+                    "with twice the points", names, where, len(hits))
+        gmsh.model.remove()
+        gmsh.model.add(f"tet-{textile.name}")
+    t = time.perf_counter()
+    gmsh.model.mesh.generate(3)
+    for method in OPTIMISE:
+        gmsh.model.mesh.optimize(method)
+    times["volume_s"] = time.perf_counter() - t
+    log.info("tet: volume mesh and optimisation %.1f s", times["volume_s"])
+    return _mesh_arrays(phase_of), lo, hi, pairs, attempt
+
+
+def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
+              folder: str, refine: int):
+    """The solids of the box (sections traced by refine x their points), their periodicity, sizes
+    and surface mesh (the model current). Returns the box, pairs and volume tag -> phase."""
     import gmsh
 
     t = time.perf_counter()
     lo, hi = _box(textile, options, gap, shrink)
     estimate = check_size(lo, hi, options)
     z_pad = None if options.z_range is not None else gap / 2
-    phase_of = solids.build(textile, lo, hi, options.spacing, options.points, shrink, z_pad)
+    phase_of = solids.build(textile, lo, hi, options.spacing, options.points, shrink, z_pad, refine)
     times["solids_s"] = time.perf_counter() - t
     log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
@@ -313,13 +367,7 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     gmsh.model.mesh.generate(2)
     times["surfaces_s"] = time.perf_counter() - t
     log.info("tet: surface mesh %.1f s", times["surfaces_s"])
-    t = time.perf_counter()
-    gmsh.model.mesh.generate(3)
-    for method in OPTIMISE:
-        gmsh.model.mesh.optimize(method)
-    times["volume_s"] = time.perf_counter() - t
-    log.info("tet: volume mesh and optimisation %.1f s", times["volume_s"])
-    return _mesh_arrays(phase_of), lo, hi, pairs
+    return lo, hi, pairs, phase_of
 
 
 def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Comm = MPI.COMM_WORLD) -> TetMesh | None:
@@ -363,7 +411,8 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
         gmsh.model.add(f"tet-{textile.name}")
         added = True
         with tempfile.TemporaryDirectory(prefix="tet-sizes-") as folder:
-            (points, tets, phase), lo, hi, pairs = _generate(textile, options, gap, shrink, height, times, folder)
+            (points, tets, phase), lo, hi, pairs, traced = _generate(textile, options, gap, shrink, height, times,
+                                                                     folder)
         elements = gmsh.model.mesh.getElementsByType(4)[0]
         quality = gmsh.model.mesh.getElementQualities(elements, "minSICN")
         gamma = gmsh.model.mesh.getElementQualities(elements, "gamma")
@@ -391,6 +440,7 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
             fibre[k] = textile.fibre_direction(i, centroids[k])
     mesh = TetMesh(points, tets, phase, fibre, lo, hi, ["matrix"] + [y.name for y in textile.yarns])
     mesh.report = _report(textile, mesh, vol, quality, gamma, contact, gap, options, times, pairs, flip)
+    mesh.report["sections_retraced"] = traced
     mesh.report["periodicity"]["snapped_mm"] = snapped
     times["checks_s"] = time.perf_counter() - t
     mesh.report["times_s"] = {**times, "total": time.perf_counter() - start}

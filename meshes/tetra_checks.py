@@ -2,6 +2,9 @@
 
 - `yarn_gaps`: the least vertical gap between any two yarns over a grid of the cell (negative: an
   overlap), with the pair and the place, measured by the model's vertical rays;
+- `surface_crossings`: where triangles of a surface mesh cross each other, which gmsh's 3D mesher
+  refuses as "a segment and a facet intersect" (two yarns' skins that cross in the gap between
+  them: a spline through too few points of a cornered section overshoots);
 - `signed_volumes`, `phase_mismatch`, `fibre_angles`: inverted tets, elements whose centroid is
   not in their own yarn, fibre directions against the path tangent.
 """
@@ -44,6 +47,50 @@ def yarn_gaps(textile: Textile, n: int = 200) -> dict:
             best = {"gap": float(gap[k]), "pair": (int(yarn[a[k]]), int(yarn[b[k]])),
                     "at": (float(xy[p, 0]), float(xy[p, 1]), float(z))}
     return best
+
+
+def _candidate_pairs(centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Pairs (P, 2), a < b, of triangles whose bounding spheres (centre, radius) meet: the
+    triangles sorted into classes of radius within a factor 2, each class pair searched with
+    one k-d tree query at the sum of the two classes' largest radii."""
+    rank = np.floor(np.log2(np.maximum(radius, 1e-300) / radius.max())).astype(int)
+    classes = [np.flatnonzero(rank == r) for r in np.unique(rank)]
+    trees = [cKDTree(centre[k]) for k in classes]
+    found = []
+    for a, (ka, ta) in enumerate(zip(classes, trees)):
+        for kb, tb in zip(classes[a:], trees[a:]):
+            pairs = ta.sparse_distance_matrix(tb, radius[ka].max() + radius[kb].max(), output_type="ndarray")
+            i, j = ka[pairs["i"]], kb[pairs["j"]]
+            meet = np.linalg.norm(centre[i] - centre[j], axis=1) <= radius[i] + radius[j]
+            found.append(np.stack([np.minimum(i, j), np.maximum(i, j)], axis=1)[meet & (i != j)])
+    return np.unique(np.concatenate(found), axis=0) if found else np.zeros((0, 2), int)
+
+
+def surface_crossings(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where an edge of one triangle of a surface mesh passes through another triangle that shares
+    no node with it (a mesh that no conforming volume mesh can fill): the points [mm] (K, 3) and
+    the two triangles (K, 2). points (N, 3); triangles (T, 3) node indices."""
+    corner = points[triangles]
+    centre = corner.mean(axis=1)
+    radius = np.linalg.norm(corner - centre[:, None], axis=2).max(axis=1)
+    pairs = _candidate_pairs(centre, radius)
+    shared = (triangles[pairs[:, 0], :, None] == triangles[pairs[:, 1], None, :]).any(axis=(1, 2))
+    pairs = pairs[~shared]
+    hits, which = [], []
+    for e, f in (pairs.T, pairs[:, ::-1].T):
+        a, b, c = (corner[f, k] for k in range(3))
+        n = np.cross(b - a, c - a)
+        for k in range(3):  # the edge p -> q of triangle e against the plane of triangle f
+            p, q = corner[e, k], corner[e, (k + 1) % 3]
+            dp, dq = np.einsum("ij,ij->i", p - a, n), np.einsum("ij,ij->i", q - a, n)
+            cross = dp * dq < 0
+            x = p + (q - p) * (dp / np.where(cross, dp - dq, 1.0))[:, None]
+            inside = cross.copy()
+            for u, v in ((a, b), (b, c), (c, a)):
+                inside &= np.einsum("ij,ij->i", np.cross(v - u, x - u), n) >= 0
+            hits.append(x[inside])
+            which.append(np.stack([e, f], axis=1)[inside])
+    return np.concatenate(hits), np.concatenate(which)
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
