@@ -74,6 +74,12 @@ def case(model: Path, kind: str, size: float, ranks: int, folder: Path, degree: 
             "constants": stiffness["engineering_constants"], "vf": stiffness["fibre_volume_fraction"]}
 
 
+def save(path: Path, records: list[dict]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"machine": os.uname().nodename, "load": os.getloadavg(), "records": records},
+                               indent=1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--kinds", nargs="+", default=["voxel", "tet"])
@@ -92,12 +98,11 @@ def main() -> None:
                 for ranks in args.ranks:
                     print(f"volume bench: {kind} at {size} mm on {ranks} rank(s)", file=sys.stderr, flush=True)
                     records.append(case(models[kind], kind, size, ranks, tmp / f"{kind}_{size}_{ranks}", args.degree))
+                    save(args.out, records)  # each case as it ends: a later one may fail (memory)
                     r = records[-1]
                     print(f"volume bench: {r['elements']} elements, {r['dofs']['elasticity']} dofs, mesh "
                           f"{r['mesh_s']:.1f} s, homogenise {r['homogenise_s']:.1f} s", file=sys.stderr, flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": os.uname().nodename, "load": os.getloadavg(), "records": records},
-                                   indent=1))
+    save(args.out, records)
     print(f"load average {os.getloadavg()[0]:.1f}; wall seconds (CPU seconds of all processes)")
     print("| kind | size mm | ranks | elements | dofs | CG its (6 cases) | volume-mesh | homogenise | total | "
           "peak GB (mesh / homogenise) | Ex MPa | Vf |")
