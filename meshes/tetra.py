@@ -315,7 +315,8 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         where = "(" + ", ".join(f"{v:.3f}" for v in hits[0]) + ") mm"
         names = " and ".join(textile.yarns[k - 1].name if k else "the box" for k in yarns)
         if attempt == RETRACE:
-            raise MeshError(f"the skins of {names} cross at {where} ({len(hits)} crossings in the surface mesh), "
+            raise MeshError(f"the tet mesh of {textile.name!r}: the skins of {names} cross at {where} "
+                            f"({len(hits)} crossings in the surface mesh), "
                             f"with the sections traced by {2**attempt} x their points: solve with a larger "
                             "--min-gap, or use --kind voxel")
         log.warning("tet: the skins of %s cross at %s (%d crossings in the surface mesh): the sections traced again "
@@ -378,7 +379,7 @@ def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Com
     if comm.rank == 0:
         try:
             result = _tet_mesh(textile, options)
-        except TextileError as e:
+        except (TextileError, MeshError) as e:
             error = e
         except Exception as e:  # gmsh's own errors, reported on every rank
             error = MeshError(f"gmsh could not make the tet mesh of {textile.name!r}: {e}; try another --size or "

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from textile_fenicsx.config import load_model
-from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.errors import GeometryError, MeshError, TextileError
 from textile_fenicsx.meshes import tetra_checks as checks
 from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh
 from textile_fenicsx.meshes.volume import Box, periodic_mismatch
@@ -164,19 +164,24 @@ def test_volume_stage_family():
 
 @pytest.mark.slow
 @pytest.mark.serial
-def test_cornered_sections_traced_again(reference_dir):
+def test_cornered_sections_traced_again(reference_dir, monkeypatch):
     """TexGen's refined jammed plain weave, corrected with the mesher's gap (its yarns 0.02 mm apart
     at their edges). Its corrected sections are 64-vertex polygons; resampled to 24 points, the
     splines through them stray from the sections at the tips by 0.013-0.015 mm, and the skins cross
     in the gap (gmsh's 3D mesher failed: "a segment and a facet intersect"). The crossings are found
     in the surface mesh and the sections traced again with 48 points: the mesh is made, periodic,
-    yarn volumes within 1 %."""
+    yarn volumes within 1 %. Without that second tracing, the error names the yarns and the place."""
     from textile_fenicsx.api import solve
+    from textile_fenicsx.meshes import tetra
     from textile_fenicsx.meshes.tetra import default_gap
 
     textile = load_model(reference_dir / "fabrics" / "plain_w0.98_h0.2_ellipse_refine.tg3")
     gap = default_gap(textile, TetOptions())
     corrected = solve(textile, seed=0.5, solver=SolverOptions(min_gap=gap)).corrected
+    monkeypatch.setattr(tetra, "RETRACE", 0)  # not traced again: the crossing is named
+    with pytest.raises(MeshError, match=r"the skins of yarn \d and yarn \d cross at \(.*\) mm .*--kind voxel"):
+        tet_mesh(corrected, TetOptions(size=0.5, gap=gap))
+    monkeypatch.undo()
     r = tet_mesh(corrected, TetOptions(size=0.5, gap=gap)).report
     assert r["sections_retraced"] == 1
     assert r["periodicity"]["periodic"]
