@@ -342,7 +342,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     lo, hi = _box(textile, options, gap, shrink)
     estimate = check_size(lo, hi, options)
     z_pad = None if options.z_range is not None else gap / 2
-    phase_of = solids.build(textile, lo, hi, options.spacing, options.points, shrink, z_pad, refine)
+    phase_of = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad)
     times["solids_s"] = time.perf_counter() - t
     log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),

@@ -114,19 +114,18 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
 
 
 def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
-          shrink: float = 0.0, z_pad: float | None = None, refine: int = 1) -> dict[int, int]:
+          shrink: float = 0.0, z_pad: float | None = None) -> dict[int, int]:
     """The model of the box [lo, hi] with every yarn's pieces in it, fragmented into one
-    conforming model (gmsh must be initialised, a model current), each yarn's sections traced by
-    refine x points points. Returns volume tag -> phase (0 the matrix, 1 + i yarn i). With
-    `z_pad` [mm], lo and hi are widened in z, in place, where the skins reach nearer than z_pad to
-    the box's top or bottom (a smooth skin swings past its sections at a binder's sharp turn; a
-    skin cut by the top face leaves that face unlike the bottom one, and the periodic pairing
-    fails)."""
+    conforming model (gmsh must be initialised, a model current). Returns volume tag -> phase
+    (0 the matrix, 1 + i yarn i). With `z_pad` [mm], lo and hi are widened in z, in place, where
+    the skins reach nearer than z_pad to the box's top or bottom (a smooth skin swings past its
+    sections at a binder's sharp turn; a skin cut by the top face leaves that face unlike the
+    bottom one, and the periodic pairing fails)."""
     import gmsh
 
     occ = gmsh.model.occ
     skins = [(i, add_skin(sections, y.name)) for i, y in enumerate(textile.yarns)
-             for sections in chains(textile, i, lo, hi, spacing, refine * points, shrink)]
+             for sections in chains(textile, i, lo, hi, spacing, points, shrink)]
     if z_pad is not None and skins:
         z0, z1 = _z_bounds([t for _, t in skins])
         lo[2], hi[2] = min(lo[2], z0 - z_pad), max(hi[2], z1 + z_pad)
