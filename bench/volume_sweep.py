@@ -6,7 +6,7 @@ command in a fresh process as a user runs it:
 1. `volume-mesh INPUT --kind voxel` on the idealised input (its overlap counted);
 2. `solve INPUT --seed 0.5 --min-gap G --out DIR`: the default solve with the tet mesher's gap held
    (G: 5 % of the thinnest yarn's height, as `solve --volume-mesh tet` takes it), then, when the
-   solve passes its check, `volume-mesh DIR/corrected.tg3 --kind tet --gap G` (at most 15 minutes);
+   solve passes its check, `volume-mesh DIR/corrected.tg3 --kind tet --gap G` (at most 30 minutes);
 3. `volume-mesh DIR/corrected.tg3 --kind voxel`, then `homogenise` of it (first-order elements, to
    keep the family's run short; the bench and the demo use second order). Sizes 0.25 mm (voxel) and
    0.35 mm (tet) by default, coarser than the bench's, to keep 53 fabrics to a few hours.
@@ -34,7 +34,8 @@ from textile_fenicsx.config import load_model as read_model  # noqa: E402
 from textile_fenicsx.meshes.tetra import TetOptions, default_gap  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-TET_TIMEOUT = 900  # s: a tet mesh not made by then counts as failed (3D weaves' binder turns)
+# s: a tet mesh not made by then counts as failed (3D weaves take 6-14 min; retracing their sections, 2-3 x that)
+TET_TIMEOUT = 1800
 
 
 def command(*args: str, timeout: float = 1800) -> tuple[int, str, float]:
