@@ -30,8 +30,12 @@ BYTES_PER_RANK = 0.3e9
 # mesh, fields), from bench/homogenise_bench.py (2026-11-25): serially, P2 tetrahedra 2.5 kB/dof
 # (0.40, 0.91, 1.59 GB at 100k, 300k, 584k dofs) and Q2 hexahedra 4.4 kB/dof (0.59, 1.47 GB at 100k,
 # 300k: 27-node cells, about twice the entries per row); on 2 ranks the sum over ranks is 5.2 and
-# 6.6 kB/dof (GAMG's parallel setup), so estimates scale the per-dof part with the ranks.
-HOMOGENISE_BYTES_PER_DOF = {"tetrahedron": 2.6e3, "hexahedron": 4.5e3}
+# 6.6 kB/dof (GAMG's parallel setup), so estimates scale the per-dof part with the ranks. First
+# order has fewer entries per row: Q1 hexahedra on 2 ranks peaked at 2.49 GB per rank with 1.17e6
+# dofs (2026-11-26, the voxel satin of README's refinement study), 1.9 kB/dof and rank; P1 tets
+# are not measured, and take P2's figure.
+HOMOGENISE_BYTES_PER_DOF = {("tetrahedron", 2): 2.6e3, ("hexahedron", 2): 4.5e3,
+                            ("tetrahedron", 1): 2.6e3, ("hexahedron", 1): 2.0e3}
 
 
 def available_memory() -> float:

@@ -130,11 +130,11 @@ class Homogenised:
         }
 
 
-def estimated_bytes(dofs: int, cell: str, ranks: int = 1) -> float:
-    """Peak memory [bytes], summed over ranks, of homogenising with `dofs` elastic unknowns
-    (memory.HOMOGENISE_BYTES_PER_DOF: per dof and rank, as measured)."""
+def estimated_bytes(dofs: int, cell: str, ranks: int = 1, degree: int = 2) -> float:
+    """Peak memory [bytes], summed over ranks, of homogenising with `dofs` elastic unknowns of the
+    given degree (memory.HOMOGENISE_BYTES_PER_DOF: per dof and rank, as measured)."""
     per_dof = memory.HOMOGENISE_BYTES_PER_DOF
-    return ranks * (dofs * per_dof.get(cell, max(per_dof.values())) + memory.BYTES_PER_RANK)
+    return ranks * (dofs * per_dof.get((cell, degree), max(per_dof.values())) + memory.BYTES_PER_RANK)
 
 
 def homogenise(mesh, cell_tags, direction, yarn_vf, fibre, matrix,
@@ -188,7 +188,7 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
                             "(a unit cell's mesh must fill its box)")
     cell = mesh.topology.cell_name()
     nodes = _nodes(mesh, options.degree)
-    memory.check(estimated_bytes(3 * nodes, cell, comm.size),
+    memory.check(estimated_bytes(3 * nodes, cell, comm.size, options.degree),
                  what=f"homogenising with {3 * nodes} elastic unknowns ({cell}, degree {options.degree}) would",
                  hint="use a coarser volume mesh", limit_gb=options.memory_limit)
     seconds: dict = {}
