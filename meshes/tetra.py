@@ -206,7 +206,8 @@ def size_grid(textile: Textile, lo: np.ndarray, hi: np.ndarray, options: TetOpti
     H, c = options.size, options.grading
     pts, nrm, lab = [], [], []
     for i in range(len(textile.yarns)):
-        for sec in solids.chains(textile, i, lo, hi, options.spacing / 2, 2 * options.points, shrink, margin=1):
+        for sec in solids.chains(textile, i, lo, hi, options.spacing / 2, 2 * options.points, shrink,
+                                  margin=1, gap=gap):
             along = np.gradient(sec, axis=0)
             around = np.roll(sec, -1, axis=1) - np.roll(sec, 1, axis=1)
             n = np.cross(along, around)
@@ -346,7 +347,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     lo, hi = _box(textile, options, gap, shrink)
     estimate = check_size(lo, hi, options)
     z_pad = None if options.z_range is not None else gap / 2
-    phase_of = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad)
+    phase_of = solids.build(textile, lo, hi, options.spacing, refine * options.points, gap, shrink, z_pad)
     times["solids_s"] = time.perf_counter() - t
     log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
