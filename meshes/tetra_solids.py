@@ -23,6 +23,7 @@ import logging
 
 import numpy as np
 
+from textile_fenicsx.meshes import tetra_sides as sides
 from textile_fenicsx.textile import Textile
 
 log = logging.getLogger(__name__)
@@ -32,10 +33,6 @@ MARGIN = 6
 # OCC's glue option for the last fragment (1: the arguments do not intersect, they only touch:
 # the pieces lie in the box and touch its sides)
 GLUE = 1
-# A station closer than this fraction of the spacing to a side of the box it crosses is left out,
-# where the skin without it strays by at most STRAY x the gap the mesh is made for.
-BESIDE = 0.4
-STRAY = 0.25
 
 
 def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink: float = 0.0) -> np.ndarray:
@@ -74,7 +71,7 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
     yarn's copy is a chain of its periods, one per lateral shift by the cell's vectors, trimmed to
     the stations whose sections reach the box plus `margin` stations at each end (so that the box
     cuts its skin where the ends no longer shape it), less the stations just beside a side that
-    shape nothing (`beside`, with the gap [mm] the mesh is made for); a piece's copies are the
+    shape nothing (tetra_sides.beside, with the gap [mm] the mesh is made for); a piece's copies are the
     piece moved by the cell's vectors."""
     yarn = textile.yarns[i]
     one = yarn_sections(textile, i, spacing, points, shrink)
@@ -102,39 +99,9 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
             continue
         if yarn.periodic:
             sec = sec[max(meets[0] - margin, 0):meets[-1] + margin + 1]
-            sec = sec[~beside(sec, yarn.period, lo, L, spacing, STRAY * gap)]
+            sec = sec[~sides.beside(sec, yarn.period, lo, L, spacing, sides.STRAY * gap)]
         out.append(sec)
     return out
-
-
-def beside(sec: np.ndarray, period: np.ndarray, lo: np.ndarray, L: np.ndarray, spacing: float,
-           tolerance: float) -> np.ndarray:
-    """Which stations of a periodic yarn's chain (M, K, 3) to leave out: those nearer than BESIDE x
-    spacing to a side of the box that the yarn runs through (the box would cut the ruled face next
-    to them into a thin strip: a sliver tet on the plain weave, 0.07 mm from y1), but only while
-    the skin ruled between the stations kept passes within `tolerance` [mm] of every point of their
-    sections. On TexGen's orthogonal weave the binders turn 0.03-0.08 mm from a side: left out,
-    those stations moved the skin by 0.05 mm, across the 0.008 mm gap and into the weft beside it,
-    and a leg running along a side lost its whole length."""
-    centre = sec.mean(axis=1)
-    near = np.zeros(len(sec), bool)
-    for ax in (0, 1):
-        if abs(period[ax]) > 1e-9:
-            r = (centre[:, ax] - lo[ax]) / L[ax]
-            near |= np.abs(r - np.round(r)) * L[ax] < BESIDE * spacing
-    near[[0, -1]] = False
-    arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0), axis=1))))
-    while near.any():  # put back the station the skin would miss most, until it misses none
-        kept, out = np.flatnonzero(~near), np.flatnonzero(near)
-        after = np.searchsorted(kept, out)
-        a, b = kept[after - 1], kept[after]
-        w = ((arc[out] - arc[a]) / (arc[b] - arc[a]))[:, None, None]
-        stray = np.linalg.norm(sec[out] - ((1 - w) * sec[a] + w * sec[b]), axis=-1).max(axis=1)
-        worst = int(np.argmax(stray))
-        if stray[worst] <= tolerance:
-            break
-        near[out[worst]] = False
-    return near
 
 
 def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int, gap: float,

@@ -55,13 +55,6 @@ class CorrectionOptions:
         return self.spacing if self.spacing is not None else min(seed / 2, 0.25)
 
 
-def _wrap(xy: np.ndarray, cell: Cell) -> np.ndarray:
-    """In-plane points brought into the cell: by periodicity, or (free edges) onto its nearest side,
-    so that a yarn's stretch beyond a cut end keeps the displacement of the end."""
-    x0, x1, y0, y1 = cell.bounds
-    if not cell.periodic:
-        return np.column_stack((np.clip(xy[:, 0], x0, x1), np.clip(xy[:, 1], y0, y1)))
-    return np.column_stack((x0 + np.mod(xy[:, 0] - x0, cell.lx), y0 + np.mod(xy[:, 1] - y0, cell.ly)))
 
 
 class _Whole:
@@ -71,12 +64,12 @@ class _Whole:
         self.w, self.cell = w, cell
 
     def centre(self, s: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        return evaluate(self.w, _wrap(xy, self.cell))
+        return evaluate(self.w, self.cell.wrap(xy))
 
     def points(self, s: np.ndarray, xy: np.ndarray, w_centre: np.ndarray) -> np.ndarray:
         # points just outside the meshed footprint (its edge is a spline through the outline) take
         # w from the nearest element
-        return evaluate(self.w, _wrap(xy.reshape(-1, 2), self.cell), extrapolate=True).reshape(xy.shape[:2])
+        return evaluate(self.w, self.cell.wrap(xy.reshape(-1, 2)), extrapolate=True).reshape(xy.shape[:2])
 
 
 class Flat:
@@ -95,7 +88,7 @@ class Flat:
 
     def shift(self, xy: np.ndarray, height: np.ndarray) -> np.ndarray:
         """The flattening's move of section points at in-plane xy, `height` above their centre [mm]."""
-        ratio = evaluate(self.ratio, _wrap(xy.reshape(-1, 2), self.cell), extrapolate=True).reshape(height.shape)
+        ratio = evaluate(self.ratio, self.cell.wrap(xy.reshape(-1, 2)), extrapolate=True).reshape(height.shape)
         return height * np.clip(ratio, *self.bounds)
 
 
@@ -142,8 +135,8 @@ class _Crowns:
         ends = []  # (parameter, w) at every crown's start and end
         for k, (crown, w, plate) in enumerate(self.pieces):
             on = owner == k
-            out[on] = evaluate(w, _wrap(xy[on], self.cell), extrapolate=True) if np.any(on) else []
-            tips = evaluate(w, _wrap(plate.nodes[[0, -1], :2], self.cell), extrapolate=True)
+            out[on] = evaluate(w, self.cell.wrap(xy[on]), extrapolate=True) if np.any(on) else []
+            tips = evaluate(w, self.cell.wrap(plate.nodes[[0, -1], :2]), extrapolate=True)
             ends += [(crown.s0, tips[0]), (crown.s1, tips[1])]
         legs = owner < 0
         if np.any(legs):
@@ -178,7 +171,7 @@ class _Crowns:
         for k, (_, w, _) in enumerate(self.pieces):
             on = owner == k
             if np.any(on):
-                out[on] = evaluate(w, _wrap(xy[on].reshape(-1, 2), self.cell),
+                out[on] = evaluate(w, self.cell.wrap(xy[on].reshape(-1, 2)),
                                    extrapolate=True).reshape(-1, xy.shape[1])
             else:
                 evaluate(w, np.zeros((0, 2)), extrapolate=True)  # collective

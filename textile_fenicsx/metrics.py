@@ -182,7 +182,7 @@ def _deepest(textile: Textile, n: int, depth: np.ndarray, xy: np.ndarray, pairs:
     pairs = dict(pairs)
     parallel = comm is not None and comm.size > 1
     for _ in range(LEVELS):
-        trial = _into_cell(cell, (points[:, None, :] + moves[None] * step).reshape(-1, 2))
+        trial = cell.wrap((points[:, None, :] + moves[None] * step).reshape(-1, 2))
         mine = np.array_split(np.arange(len(trial)), comm.size)[comm.rank] if parallel else np.arange(len(trial))
         col = textile.columns(trial[mine])
         bot, top = _clipped(textile, col)
@@ -211,12 +211,6 @@ def _deepest(textile: Textile, n: int, depth: np.ndarray, xy: np.ndarray, pairs:
     return best_depth, best_at, pairs
 
 
-def _into_cell(cell, p: np.ndarray) -> np.ndarray:
-    """Points moved into the cell: by whole cells where it is periodic, onto its sides where not."""
-    x0, x1, y0, y1 = cell.bounds
-    if cell.periodic:
-        return np.column_stack((x0 + np.mod(p[:, 0] - x0, cell.lx), y0 + np.mod(p[:, 1] - y0, cell.ly)))
-    return np.column_stack((np.clip(p[:, 0], x0, x1), np.clip(p[:, 1], y0, y1)))
 
 
 # Points per section when measuring section areas: a 64-point polygon holds 0.16 % less than its

@@ -75,6 +75,17 @@ class Cell:
     def bounds(self) -> tuple[float, float, float, float]:
         return self.x0, self.x0 + self.lx, self.y0, self.y0 + self.ly
 
+    def wrap(self, points) -> np.ndarray:
+        """Points (N, 2) or (N, 3) [mm] brought into the cell in plan (z kept): by whole cells where
+        it is periodic, onto its nearest side where it is not."""
+        p = np.array(points, float)
+        x0, x1, y0, y1 = self.bounds
+        if self.periodic:
+            p[:, 0], p[:, 1] = x0 + np.mod(p[:, 0] - x0, self.lx), y0 + np.mod(p[:, 1] - y0, self.ly)
+        else:
+            p[:, 0], p[:, 1] = np.clip(p[:, 0], x0, x1), np.clip(p[:, 1], y0, y1)
+        return p
+
     def grid(self, n: int) -> tuple[np.ndarray, float]:
         """Cell-centred n x n sample points (n*n, 2) and the area each represents."""
         x = self.x0 + (np.arange(n) + 0.5) * self.lx / n
