@@ -69,33 +69,41 @@ def beside(sec: np.ndarray, period: np.ndarray, lo: np.ndarray, L: np.ndarray, s
 def shift(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, hi: np.ndarray, spacing: float,
           gap: float) -> np.ndarray:
     """The shift (dx, dy, 0) [mm] of the box [lo, hi] along the cell's sides, the least found in
-    steps of spacing / 4 up to half the cell, after which every station near a side can be left out
-    with the skin straying by at most STRAY x gap: the sides then cut the yarns where they run
-    straight. sections: each yarn's section polygons over one period (tetra_solids.yarn_sections;
-    pieces are not cut this way: ignored). Zero where the box is already so; where no shift is,
-    the one that strays least."""
+    steps of spacing / 4 up to half the cell, after which (1) every station near a side can be left
+    out with the skin straying by at most STRAY x gap, and (2) a side that cuts a yarn lengthwise
+    (one running along it) passes at least BESIDE x spacing inside its edges (a cut grazing a weft's
+    edge 0.0125 mm inside it lost that face on one side of the box only, and the sides did not
+    pair). The sides then cut the yarns where they run straight and squarely. sections: each yarn's
+    section polygons (M, K, 3) over one period (tetra_solids.yarn_sections). Zero where the box is
+    already so; where no shift is, the one that strays least."""
     L = hi - lo
+    band = BESIDE * spacing
     out = np.zeros(3)
     for ax in (0, 1):
-        chains = []
+        through, along = [], []
         for y, one in zip(textile.yarns, sections):
             if y.periodic and abs(y.period[ax]) > 1e-9:
-                chains.append((y.period, np.concatenate([one[:-1] + k * y.period for k in (-1, 0, 1)]
-                                                        + [one[-1:] + y.period])))
+                through.append((y.period, np.concatenate([one[:-1] + k * y.period for k in (-1, 0, 1)]
+                                                         + [one[-1:] + y.period])))
+            else:
+                along.append(np.stack([one[..., ax].min(axis=1), one[..., ax].max(axis=1)], axis=1))
+        edges = np.concatenate(along) if along else np.zeros((0, 2))
         step = spacing / 4
-        steps = int(L[ax] / 2 / step)
         best, least = 0.0, np.inf
-        for k in [0] + [s * j for j in range(1, steps + 1) for s in (1, -1)]:
+        for k in [0] + [s * j for j in range(1, int(L[ax] / 2 / step) + 1) for s in (1, -1)]:
             d = np.zeros(3)
             d[ax] = k * step
             worst = 0.0
-            for period, sec in chains:
+            for period, sec in through:
                 near = near_sides(sec.mean(axis=1), period, lo + d, L, spacing, (ax,))
                 if near.any():
                     worst = max(worst, float(strays(sec, near).max()))
-            if worst < least:
+            side = lo[ax] + d[ax] + np.ceil((edges[:, 0] - lo[ax] - d[ax]) / L[ax]) * L[ax]  # first side past
+            cut = side < edges[:, 1]                                                         # each section's edge
+            grazing = bool(np.any(np.minimum(side - edges[:, 0], edges[:, 1] - side)[cut] < band))
+            if worst < least and not grazing:
                 best, least = d[ax], worst
-            if worst <= STRAY * gap:
+            if worst <= STRAY * gap and not grazing:
                 break
         out[ax] = best
     return out

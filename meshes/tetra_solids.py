@@ -30,6 +30,10 @@ log = logging.getLogger(__name__)
 
 # Stations a periodic yarn's chain goes on beyond the box at each end.
 MARGIN = 6
+# Times a yarn's skins are made, each with its splines started at another point of the sections,
+# when OCC's cut of one by the box comes back empty (it did for the straight middle weft of
+# TexGen's orthogonal weave cut lengthwise: with the splines started 3 of 24 points on, it cuts).
+SEAMS = 4
 # OCC's glue option for the last fragment (1: the arguments do not intersect, they only touch:
 # the pieces lie in the box and touch its sides)
 GLUE = 1
@@ -116,15 +120,28 @@ def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, poin
     import gmsh
 
     occ = gmsh.model.occ
-    skins = [(i, add_skin(sections, y.name)) for i, y in enumerate(textile.yarns)
-             for sections in chains(textile, i, lo, hi, spacing, points, shrink, gap=gap)]
-    if z_pad is not None and skins:
-        z0, z1 = _z_bounds([t for _, t in skins])
+    copies = [chains(textile, i, lo, hi, spacing, points, shrink, gap=gap) for i in range(len(textile.yarns))]
+    skins = [[add_skin(sections, y.name) for sections in mine] for y, mine in zip(textile.yarns, copies)]
+    if z_pad is not None and any(skins):
+        z0, z1 = _z_bounds([t for mine in skins for t in mine])
         lo[2], hi[2] = min(lo[2], z0 - z_pad), max(hi[2], z1 + z_pad)
     pieces = []
-    for i, solid in skins:
-        cut, _ = occ.intersect([(3, solid)], [(3, occ.addBox(*lo, *(hi - lo)))])
-        pieces += [(i, t) for d, t in cut if d == 3]
+    for i, y in enumerate(textile.yarns):
+        for attempt in range(SEAMS):
+            if attempt:  # the same sections, their splines started elsewhere
+                skins[i] = [add_skin(np.roll(sec, attempt * points // (2 * SEAMS), axis=1), y.name)
+                            for sec in copies[i]]
+            got, lost = [], False
+            for sections, solid in zip(copies[i], skins[i]):
+                cut, _ = occ.intersect([(3, solid)], [(3, occ.addBox(*lo, *(hi - lo)))])
+                got += [t for d, t in cut if d == 3]
+                lost |= not cut and _reaches(sections, lo, hi)
+            if not lost:
+                break
+            occ.remove([(3, t) for t in got], recursive=True)
+            log.warning("tet: OCC's cut of %s by the box gave nothing: its sections' splines started at another "
+                        "point", y.name)
+        pieces += [(i, t) for t in got]
     glue = gmsh.option.getNumber("Geometry.OCCBooleanGlue")
     gmsh.option.setNumber("Geometry.OCCBooleanGlue", GLUE)
     try:
@@ -137,6 +154,12 @@ def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, poin
         for _, t in part:
             phase[t] = i + 1
     return phase
+
+
+def _reaches(sections: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether some point of these sections lies inside the box [lo, hi] (its cut is not empty)."""
+    margin = 1e-6 * float(np.max(hi - lo))
+    return bool(np.any(np.all((sections > lo + margin) & (sections < hi - margin), axis=-1)))
 
 
 def _z_bounds(solids: list[int]) -> tuple[float, float]:
