@@ -37,7 +37,6 @@ from scipy.spatial import cKDTree
 
 from textile_fenicsx.errors import GeometryError, MeshError, TextileError, check_positive
 from textile_fenicsx.meshes import tetra_checks as checks
-from textile_fenicsx.meshes import tetra_sides as sides
 from textile_fenicsx.meshes import tetra_solids as solids
 from textile_fenicsx.meshes.volume import Box, periodic_mismatch
 from textile_fenicsx.textile import Textile
@@ -59,7 +58,8 @@ OPTIMISE = ("Relocate3D", "")
 # boxes of spline faces are loose (the faces are then checked by the mesh's periodicity).
 PAIR_TOLERANCE = 5e-4
 # A yarn whose meshed volume is off the model's by more than this [%] fails the mesh (OCC's cut of
-# a binder's skin by the box has given nothing and no error; the sweep's worst otherwise is 1.3 %).
+# a skin by the box can give nothing, and no error: the binders of TexGen's orthogonal weave with
+# their stations beside the box's sides kept; the sweep's worst otherwise is 2.5 %).
 LOST = 10.0
 # Times the sections are traced again with twice the points when the surface mesh crosses itself.
 RETRACE = 2
@@ -174,8 +174,6 @@ def check_contacts(textile: Textile, gap: float, shrink: bool, n: int = 200) -> 
 
 
 def _box(textile: Textile, options: TetOptions, gap: float, shrink: float) -> tuple[np.ndarray, np.ndarray]:
-    """The mesh's box [mm]: the cell's, moved along its sides to where they cut the yarns
-    straight (tetra_sides.shift), from the z_range or the yarns' extent padded by gap / 2."""
     c = textile.cell
     if options.z_range is not None:
         z0, z1 = map(float, options.z_range)
@@ -185,14 +183,7 @@ def _box(textile: Textile, options: TetOptions, gap: float, shrink: float) -> tu
             sec = solids.yarn_sections(textile, i, options.spacing / 2, 4 * options.points, shrink)
             z0, z1 = min(z0, sec[..., 2].min()), max(z1, sec[..., 2].max())
         z0, z1 = z0 - gap / 2, z1 + gap / 2
-    lo, hi = np.array([c.x0, c.y0, z0]), np.array([c.x0 + c.lx, c.y0 + c.ly, z1])
-    sections = [solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
-                for i in range(len(textile.yarns))]
-    move = sides.shift(textile, sections, lo, hi, options.spacing, gap)
-    if np.any(move):
-        log.info("tet: the box moved by (%.4f, %.4f) mm so that its sides cut the yarns where they run straight",
-                 move[0], move[1])
-    return lo + move, hi + move
+    return np.array([c.x0, c.y0, z0]), np.array([c.x0 + c.lx, c.y0 + c.ly, z1])
 
 
 def check_size(lo: np.ndarray, hi: np.ndarray, options: TetOptions) -> int:
@@ -219,8 +210,7 @@ def size_grid(textile: Textile, lo: np.ndarray, hi: np.ndarray, options: TetOpti
     H, c = options.size, options.grading
     pts, nrm, lab = [], [], []
     for i in range(len(textile.yarns)):
-        for sec in solids.chains(textile, i, lo, hi, options.spacing / 2, 2 * options.points, shrink,
-                                  margin=1, gap=gap):
+        for sec in solids.chains(textile, i, lo, hi, options.spacing / 2, 2 * options.points, shrink, margin=1):
             along = np.gradient(sec, axis=0)
             around = np.roll(sec, -1, axis=1) - np.roll(sec, 1, axis=1)
             n = np.cross(along, around)
@@ -308,9 +298,9 @@ def _crossings(phase_of: dict[int, int]) -> tuple[np.ndarray, tuple[int, ...]]:
         triangles.append(index[nodes.astype(np.int64)].reshape(-1, 3))
         surface.append(np.full(len(triangles[-1]), s))
     hits, which = checks.surface_crossings(xyz.reshape(-1, 3), np.concatenate(triangles))
-    bounding = tuple(max(phase_of.get(v, 0) for v in gmsh.model.getAdjacencies(2, int(s))[0])
-                     for s in np.concatenate(surface)[which[:1].ravel()])
-    return hits, bounding
+    sides = tuple(max(phase_of.get(v, 0) for v in gmsh.model.getAdjacencies(2, int(s))[0])
+                  for s in np.concatenate(surface)[which[:1].ravel()])
+    return hits, sides
 
 
 def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
@@ -360,7 +350,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     lo, hi = _box(textile, options, gap, shrink)
     estimate = check_size(lo, hi, options)
     z_pad = None if options.z_range is not None else gap / 2
-    phase_of = solids.build(textile, lo, hi, options.spacing, refine * options.points, gap, shrink, z_pad)
+    phase_of = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad)
     times["solids_s"] = time.perf_counter() - t
     log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
@@ -452,7 +442,7 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
         raise GeometryError(f"the tet mesh of {textile.name!r} has a flat tet at ({where}) mm "
                             f"(volume {vol[k]:.2g} mm^3)")
     fibre = np.zeros((len(tets), 3))
-    centroids = textile.cell.wrap(points[tets].mean(axis=1))  # the box may be the cell moved
+    centroids = points[tets].mean(axis=1)
     for i in range(len(textile.yarns)):
         k = phase == i + 1
         if np.any(k):
@@ -467,8 +457,8 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
     lost = max(r["volume"]["per_yarn"], key=lambda y: abs(y["error_percent"]), default=None)
     if lost is not None and abs(lost["error_percent"]) > LOST:
         raise MeshError(f"the tet mesh of {textile.name!r} holds {lost['meshed_mm3']:.4g} mm^3 of {lost['yarn']} "
-                        f"where the model has {lost['model_mm3']:.4g} ({lost['error_percent']:+.1f} %): OCC could "
-                        "not cut its solid by the box; use --kind voxel")
+                        f"where the model has {lost['model_mm3']:.4g} ({lost['error_percent']:+.1f} %): OCC's cut "
+                        "of its skin by the box lost it; use --kind voxel")
     log.info("tet: %d tets, %d nodes, quality (minSICN) min %.3f mean %.3f, yarn volume error worst %.2f %%, "
              "periodic %s, %.1f s", r["elements"], r["nodes"], r["quality"]["min"], r["quality"]["mean"],
              r["volume"]["worst_error_percent"], r["periodicity"]["periodic"], r["times_s"]["total"])

@@ -103,7 +103,7 @@ def phase_mismatch(textile: Textile, points: np.ndarray, tets: np.ndarray, phase
     """Elements whose centroid the model does not put in their own phase: a yarn element whose
     centroid is outside its yarn, a matrix element whose centroid is inside a yarn, any centroid
     inside two yarns. Returns counts and the volume they hold [mm^3]."""
-    c = textile.cell.wrap(points[tets].mean(axis=1))
+    c = points[tets].mean(axis=1)
     inside = textile.inside(c)
     own = np.where(phase > 0, inside[np.arange(len(c)), np.maximum(phase - 1, 0)], ~inside.any(axis=1))
     two = inside.sum(axis=1) > 1
@@ -118,7 +118,7 @@ def fibre_angles(textile: Textile, points: np.ndarray, tets: np.ndarray, phase: 
     """Per yarn element, the angle [deg] between its fibre direction and the tangent of its yarn's
     centreline at the point of the centreline nearest its centroid (sampled ten times finer than
     the fibre directions were)."""
-    c = textile.cell.wrap(points[tets].mean(axis=1))
+    c = points[tets].mean(axis=1)
     angles = np.zeros(0)
     for i, y in enumerate(textile.yarns):
         k = np.flatnonzero(phase == i + 1)

@@ -59,28 +59,6 @@ def test_surface_crossings():
     assert len(checks.surface_crossings(points, np.array([[0, 1, 2], [1, 2, 9]]))[0]) == 0  # a neighbour
 
 
-@pytest.mark.serial
-def test_stations_beside_a_side():
-    """A station within 0.4 x spacing of a side the yarn runs through is left out where the skin
-    ruled between its neighbours passes through its section anyway (a straight stretch: the same
-    circle moved, so it strays by 0), and kept at a corner there: left out, the skin would cut the
-    corner by sqrt(2) x 0.125 mm (the chord's midpoint from the corner), far beyond the tolerance."""
-    from textile_fenicsx.meshes.tetra_sides import beside
-
-    angle = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    circle = 0.1 * np.stack([0 * angle, np.cos(angle), np.sin(angle)], -1)
-    lo, L, period = np.zeros(3), np.array([2.0, 2.0, 1.0]), np.array([2.0, 0.0, 0.0])
-    straight = np.array([[-0.5, 1, 0], [-0.25, 1, 0], [0.05, 1, 0], [0.3, 1, 0], [0.55, 1, 0]])
-    left_out = beside(straight[:, None] + circle, period, lo, L, 0.25, 1e-3)
-    assert left_out.tolist() == [False, False, True, False, False]
-    corner = np.array([[-0.45, 1, 0], [-0.2, 1, 0], [0.05, 1, 0], [0.05, 1, 0.25], [0.05, 1, 0.5]])
-    left_out = beside(corner[:, None] + circle, period, lo, L, 0.25, 1e-3)
-    assert left_out.tolist() == [False, False, False, True, False]  # the leg's station, not the corner
-    # both left out, the chord from the 2nd station to the last passes sqrt(2) / 6 mm from the corner
-    assert beside(corner[:, None] + circle, period, lo, L, 0.25, 0.23).tolist() == [False, False, False, True, False]
-    assert beside(corner[:, None] + circle, period, lo, L, 0.25, 0.24).tolist() == [False, False, True, True, False]
-
-
 @pytest.mark.mpi
 def test_overlapping_model_refused(reference_dir, comm):
     """TexGen's idealised plain weave overlaps: refused on every rank, naming the pair and the place."""
@@ -129,6 +107,23 @@ def test_touching_model_refused(loose_plain, comm):
     _, touching = loose_plain
     with pytest.raises(GeometryError, match="--min-gap"):
         tet_mesh(touching, TetOptions(size=0.5, gap=GAP), comm)
+
+
+@pytest.mark.mpi
+def test_lost_yarn_fails(loose_plain, comm, monkeypatch):
+    """A yarn that OCC's cut by the box loses (here: no skin is made for yarn 0) fails the mesh,
+    naming the yarn and its volumes, on every rank: the mesh that would be written holds none of
+    it (before, the command succeeded with a report of -100 %)."""
+    from textile_fenicsx.meshes import tetra_solids
+
+    chains = tetra_solids.chains
+    def without_yarn_0(textile, i, *args, **kwargs):
+        return [] if i == 0 else chains(textile, i, *args, **kwargs)
+
+    monkeypatch.setattr(tetra_solids, "chains", without_yarn_0)
+    gapped, _ = loose_plain
+    with pytest.raises(MeshError, match=rf"holds 0 mm\^3 of {gapped.yarns[0].name} .*-100.0 %.*--kind voxel"):
+        tet_mesh(gapped, TetOptions(size=0.5, gap=GAP), comm)
 
 
 @pytest.mark.mpi
