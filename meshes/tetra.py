@@ -263,14 +263,21 @@ def _background(axes: list[np.ndarray], h: np.ndarray, folder: str) -> None:
     gmsh.model.mesh.field.setAsBackgroundMesh(field)
 
 
-def _mesh_arrays(phase_of: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nodes (N, 3), tets (E, 4) and phases (E,) of the current gmsh model, positively oriented."""
+def _nodes() -> tuple[np.ndarray, np.ndarray]:
+    """The current gmsh model's nodes (N, 3) and the row of each node tag (-1: no such tag)."""
     import gmsh
 
     tags, xyz, _ = gmsh.model.mesh.getNodes()
     index = np.full(int(tags.max()) + 1, -1, np.int64)
     index[tags.astype(np.int64)] = np.arange(len(tags))
-    points = xyz.reshape(-1, 3)
+    return xyz.reshape(-1, 3), index
+
+
+def _mesh_arrays(phase_of: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes (N, 3), tets (E, 4) and phases (E,) of the current gmsh model, positively oriented."""
+    import gmsh
+
+    points, index = _nodes()
     tets: list[np.ndarray] = []
     phase: list[np.ndarray] = []
     for vol, ph in sorted(phase_of.items()):
@@ -289,15 +296,13 @@ def _crossings(phase_of: dict[int, int]) -> tuple[np.ndarray, tuple[int, ...]]:
     and the phases of the first two crossing triangles (the yarn each bounds, 0 the box)."""
     import gmsh
 
-    tags, xyz, _ = gmsh.model.mesh.getNodes()
-    index = np.full(int(tags.max()) + 1, -1, np.int64)
-    index[tags.astype(np.int64)] = np.arange(len(tags))
+    points, index = _nodes()
     triangles, surface = [], []
     for _, s in gmsh.model.getEntities(2):
         nodes = gmsh.model.mesh.getElementsByType(2, s)[1]
         triangles.append(index[nodes.astype(np.int64)].reshape(-1, 3))
         surface.append(np.full(len(triangles[-1]), s))
-    hits, which = checks.surface_crossings(xyz.reshape(-1, 3), np.concatenate(triangles))
+    hits, which = checks.surface_crossings(points, np.concatenate(triangles))
     sides = tuple(max(phase_of.get(v, 0) for v in gmsh.model.getAdjacencies(2, int(s))[0])
                   for s in np.concatenate(surface)[which[:1].ravel()])
     return hits, sides
