@@ -55,8 +55,6 @@ class CorrectionOptions:
         return self.spacing if self.spacing is not None else min(seed / 2, 0.25)
 
 
-
-
 class _Whole:
     """The displacement of a yarn that is one plate: w (a Function on its mid-surface)."""
 

@@ -211,8 +211,6 @@ def _deepest(textile: Textile, n: int, depth: np.ndarray, xy: np.ndarray, pairs:
     return best_depth, best_at, pairs
 
 
-
-
 # Points per section when measuring section areas: a 64-point polygon holds 0.16 % less than its
 # ellipse, a 1024-point one 6e-4 %.
 AREA_POINTS = 1024

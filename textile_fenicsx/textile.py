@@ -77,7 +77,8 @@ class Cell:
 
     def wrap(self, points) -> np.ndarray:
         """Points (N, 2) or (N, 3) [mm] brought into the cell in plan (z kept): by whole cells where
-        it is periodic, onto its nearest side where it is not."""
+        it is periodic, onto its nearest side where it is not (a yarn's stretch beyond a coupon's cut
+        end then takes what is found at the end)."""
         p = np.array(points, float)
         x0, x1, y0, y1 = self.bounds
         if self.periodic:
