@@ -182,3 +182,43 @@ def test_a_tight_plain_weave_keeps_its_volume_per_length(comm):
     assert max(map(abs, m["yarn_surface_volume_per_length_change"])) < 1e-3
     assert max(m["yarn_volume_change"]) > 0.14  # the yarns are 15 % longer: more crimp, not more area
     assert m["after"]["interpenetration"]["volume"] == 0.0
+
+
+def _jammed_plain(fabric: str):
+    """The sweep's jammed plain weaves (width/spacing 0.98): TexGen's (bench/make_fabrics.py) and
+    our builder's (`ours_plain_jammed`)."""
+    from textile_fenicsx.tg3 import read_tg3
+    from textile_fenicsx.weaves import build
+
+    if fabric == "texgen":
+        return read_tg3(REPO / "reference" / "fabrics" / "plain_w0.98_h0.2_ellipse.tg3")
+    return build("plain", spacing=2.0, width=1.96, height=0.4)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("fabric", ["texgen", "ours"])
+def test_jammed_plain_weaves_pass_at_seed_0_35(fabric, comm):
+    # issue 27, item 3: the jammed plain weaves pass their check at seed 0.35, with no overlap left.
+    # At seed 0.5 they still fail (docs/sweep.md): the plates' mesh does not resolve the corner
+    # where the four footprints nearly meet
+    from textile_fenicsx.meshes.projected import MeshOptions
+    from textile_fenicsx.pipeline import Settings, run
+
+    m = run(_jammed_plain(fabric), Settings(MeshOptions(0.35)), comm).metrics
+    assert m["verdict"]["passed"], [f["message"] for f in m["verdict"]["failures"]]
+    assert m["after"]["interpenetration"]["volume"] == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_jammed_plain_weave_thickness_has_converged_at_seed_0_35():
+    # the passing seed is a converged one: seed 0.25 gives the same thickness to 0.5 % (1.083 and
+    # 1.084 mm on TexGen's), where seed 0.5 is 7 % thicker (1.160 mm: too coarse for this weave)
+    from mpi4py import MPI
+
+    from textile_fenicsx.meshes.projected import MeshOptions
+    from textile_fenicsx.pipeline import Settings, run
+
+    thickness = [run(_jammed_plain("texgen"), Settings(MeshOptions(seed)), MPI.COMM_WORLD).metrics["after"]["thickness"]
+                 for seed in (0.35, 0.25)]
+    assert thickness[0] == pytest.approx(thickness[1], rel=5e-3)
