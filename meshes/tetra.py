@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from textile_fenicsx.errors import GeometryError, MeshError, TextileError, check_positive
 from textile_fenicsx.meshes import tetra_checks as checks
+from textile_fenicsx.meshes import tetra_sides
 from textile_fenicsx.meshes import tetra_solids as solids
 from textile_fenicsx.meshes.volume import Box, periodic_mismatch
 from textile_fenicsx.textile import Textile
@@ -63,6 +64,9 @@ PAIR_TOLERANCE = 5e-4
 LOST = 10.0
 # Times the sections are traced again with twice the points when the surface mesh crosses itself.
 RETRACE = 2
+# Places the box may move to, past the cell's origin, where OCC's cut of a skin by the box gives
+# nothing (tetra_sides.moves)
+MOVES = 3
 
 
 @dataclass(frozen=True)
@@ -316,9 +320,11 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     the arrays, box, pairs and how many times the points were doubled."""
     import gmsh
 
-    before = np.inf
+    before, move = np.inf, np.zeros(3)
     for attempt in range(RETRACE + 1):
-        lo, hi, pairs, phase_of = _surfaces(textile, options, gap, shrink, height, times, folder, 2**attempt)
+        # a retrace keeps the box where it went
+        lo, hi, pairs, phase_of, move = _surfaces(textile, options, gap, shrink, height, times, folder, 2**attempt,
+                                                  move)
         hits, yarns = _crossings(phase_of)
         if not len(hits):
             break
@@ -346,16 +352,37 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
 
 
 def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
-              folder: str, refine: int):
+              folder: str, refine: int, move: np.ndarray):
     """The solids of the box (sections traced by refine x their points), their periodicity, sizes
-    and surface mesh (the model current). Returns the box, pairs and volume tag -> phase."""
+    and surface mesh (the model current). The box is the cell's moved by `move` (mm), and moved
+    again where OCC's cut loses a yarn (tetra_sides). Returns the box, pairs, volume tag -> phase
+    and the move."""
     import gmsh
 
     t = time.perf_counter()
-    lo, hi = _box(textile, options, gap, shrink)
-    estimate = check_size(lo, hi, options)
+    lo0, hi0 = _box(textile, options, gap, shrink)
+    estimate = check_size(lo0, hi0, options)
     z_pad = None if options.z_range is not None else gap / 2
-    phase_of = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad)
+    moves, tried = None, 0
+    while True:
+        lo, hi = lo0 + move, hi0 + move
+        phase_of, lost = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad)
+        if not lost:
+            break
+        names = ", ".join(textile.yarns[i].name for i in lost)
+        if moves is None:  # where the box may go instead (tetra_sides.moves)
+            moves = tetra_sides.moves(textile, [solids.yarn_sections(textile, i, options.spacing, options.points,
+                                                                     shrink) for i in range(len(textile.yarns))],
+                                      lo0, hi0)[:MOVES]
+        if tried == len(moves):
+            raise MeshError(f"the tet mesh of {textile.name!r}: OCC's cut of the skin of {names} by the box gave "
+                            f"nothing, with the box at the cell's origin and moved {tried} times along its sides; "
+                            "use --kind voxel")
+        move, tried = moves[tried], tried + 1
+        log.warning("tet: OCC's cut of the skin of %s by the box gave nothing: the box moved by (%.4g, %.4g) mm along "
+                    "the cell's sides, to the middle of a gap between the yarns along them", names, move[0], move[1])
+        gmsh.model.remove()
+        gmsh.model.add(f"tet-{textile.name}")
     times["solids_s"] = time.perf_counter() - t
     log.info("tet: %d yarn pieces and the matrix in the box %s - %s mm, %.1f s (about %d tets expected)",
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
@@ -381,7 +408,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     gmsh.model.mesh.generate(2)
     times["surfaces_s"] = time.perf_counter() - t
     log.info("tet: surface mesh %.1f s", times["surfaces_s"])
-    return lo, hi, pairs, phase_of
+    return lo, hi, pairs, phase_of, move
 
 
 def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Comm = MPI.COMM_WORLD) -> TetMesh | None:
@@ -455,6 +482,7 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
     mesh = TetMesh(points, tets, phase, fibre, lo, hi, ["matrix"] + [y.name for y in textile.yarns])
     mesh.report = _report(textile, mesh, vol, quality, gamma, contact, gap, options, times, pairs, flip)
     mesh.report["sections_retraced"] = traced
+    mesh.report["box_moved_mm"] = [float(lo[0] - textile.cell.x0), float(lo[1] - textile.cell.y0)]
     mesh.report["periodicity"]["snapped_mm"] = snapped
     times["checks_s"] = time.perf_counter() - t
     mesh.report["times_s"] = {**times, "total": time.perf_counter() - start}

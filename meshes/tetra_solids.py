@@ -23,6 +23,7 @@ import logging
 
 import numpy as np
 
+from textile_fenicsx.meshes import tetra_sides as sides
 from textile_fenicsx.textile import Textile
 
 log = logging.getLogger(__name__)
@@ -32,8 +33,6 @@ MARGIN = 6
 # OCC's glue option for the last fragment (1: the arguments do not intersect, they only touch:
 # the pieces lie in the box and touch its sides)
 GLUE = 1
-# A station closer than this fraction of the spacing to a side of the box it crosses is left out.
-BESIDE = 0.4
 
 
 def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink: float = 0.0) -> np.ndarray:
@@ -99,28 +98,21 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
             continue
         if yarn.periodic:
             sec = sec[max(meets[0] - margin, 0):meets[-1] + margin + 1]
-            # no station just beside a side of the box that the yarn runs through: the box would cut
-            # its ruled face into a thin strip (a sliver tet on the plain weave, 0.07 mm from y1)
-            centre = sec.mean(axis=1)
-            near = np.zeros(len(sec), bool)
-            for ax in (0, 1):
-                if abs(yarn.period[ax]) > 1e-9:
-                    r = (centre[:, ax] - lo[ax]) / L[ax]
-                    near |= np.abs(r - np.round(r)) * L[ax] < BESIDE * spacing
-            near[[0, -1]] = False
-            sec = sec[~near]
+            # no station just beside a side of the box that the yarn crosses (tetra_sides)
+            sec = sec[~sides.left_out(sec.mean(axis=1), yarn.period, lo, L, spacing)]
         out.append(sec)
     return out
 
 
 def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
-          shrink: float = 0.0, z_pad: float | None = None) -> dict[int, int]:
+          shrink: float = 0.0, z_pad: float | None = None) -> tuple[dict[int, int], list[int]]:
     """The model of the box [lo, hi] with every yarn's pieces in it, fragmented into one
     conforming model (gmsh must be initialised, a model current). Returns volume tag -> phase
-    (0 the matrix, 1 + i yarn i). With `z_pad` [mm], lo and hi are widened in z, in place, where
-    the skins reach nearer than z_pad to the box's top or bottom (a smooth skin swings past its
-    sections at a binder's sharp turn; a skin cut by the top face leaves that face unlike the
-    bottom one, and the periodic pairing fails)."""
+    (0 the matrix, 1 + i yarn i), and the yarns whose skins reach the box but which OCC's cut by
+    the box left with no piece (it returns nothing for them, without an error). With `z_pad`
+    [mm], lo and hi are widened in z, in place, where the skins reach nearer than z_pad to the
+    box's top or bottom (a smooth skin swings past its sections at a binder's sharp turn; a skin
+    cut by the top face leaves that face unlike the bottom one, and the periodic pairing fails)."""
     import gmsh
 
     occ = gmsh.model.occ
@@ -144,7 +136,7 @@ def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, poin
     for (i, _), part in zip(pieces, parts[1:]):
         for _, t in part:
             phase[t] = i + 1
-    return phase
+    return phase, sorted({i for i, _ in skins} - {i for i, _ in pieces})
 
 
 def _z_bounds(solids: list[int]) -> tuple[float, float]:

@@ -1,0 +1,83 @@
+"""Where the sides of a tet mesh's box cut the yarns (meshes/tetra.py builds the box, tetra_solids.py
+the yarns).
+
+The box cuts each yarn's skin, a chain of ruled faces between section stations:
+- A station of a yarn that crosses a side, nearer than BESIDE x spacing to it, is left out of the
+  skin (`left_out`). Otherwise the cut leaves a thin strip of ruled face beside it: a sliver tet on
+  the plain weave, 0.07 mm from y1.
+- A station where the yarn runs along the side (its tangent within 60 degrees of the side's plane:
+  a binder's leg) is kept. TexGen's orthogonal binders have vertical legs centred on their weft
+  gaps, x = 0 among them, to 0.004 mm. Left out, a leg's stations took the turn out of its skin,
+  which then cut 0.05 mm into the weft beside it, across a gap of 0.008 mm.
+- OCC's cut of such a binder's skin by the box at x = 0 returned nothing, for any station rule
+  tried. The same cut at x = 2.8 or 5.6 mm, through legs of the same shape, keeps the binder.
+  A periodic cell's box may start anywhere, so where a yarn is lost in the cut the box moves
+  (`moves`): to the middle of a gap between the yarns that run along that axis's sides, nearest
+  the origin first. A side there cuts no yarn lengthwise other than such legs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from textile_fenicsx.textile import Textile
+
+# A station closer than this fraction of the spacing to a side of the box it crosses is left out.
+BESIDE = 0.4
+# ... where the yarn crosses it: |tangent . side's normal| above this (cos 60 degrees)
+CROSSING = 0.5
+# a move by less than this fraction of the cell is the box where it is
+STILL = 0.01
+
+
+def left_out(centre: np.ndarray, period: np.ndarray, lo: np.ndarray, length: np.ndarray,
+             spacing: float) -> np.ndarray:
+    """Which stations (centres (M, 3) [mm], a chain of a periodic yarn) to leave out of its skin:
+    nearer than BESIDE x spacing to a side of the box [lo, lo + length] (or its periodic images)
+    that the yarn runs through, where the yarn crosses it; never the chain's ends."""
+    tangent = np.gradient(centre, axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1), 1e-12)[:, None]
+    out = np.zeros(len(centre), bool)
+    for ax in (0, 1):
+        if abs(period[ax]) > 1e-9:
+            r = (centre[:, ax] - lo[ax]) / length[ax]
+            out |= (np.abs(r - np.round(r)) * length[ax] < BESIDE * spacing) & (np.abs(tangent[:, ax]) > CROSSING)
+    out[[0, -1]] = False
+    return out
+
+
+def _gap_middles(extents: np.ndarray, lo: float, length: float) -> np.ndarray:
+    """The middles of the gaps between intervals (N, 2) [mm] on a circle of `length` starting at
+    lo, as shifts from lo in (-length / 2, length / 2], nearest 0 first; none where the
+    intervals leave no gap."""
+    if len(extents) == 0:
+        return np.zeros(0)
+    a = (extents[:, 0] - lo) % length
+    spans = sorted(zip(a, a + extents[:, 1] - extents[:, 0]))
+    middles, reach = [], spans[0][1]
+    for start, end in spans[1:] + [(spans[0][0] + length, spans[0][1] + length)]:
+        if start > reach:
+            middles.append((reach + start) / 2)
+        reach = max(reach, end)
+    m = np.array(middles) % length
+    m = np.where(m > length / 2, m - length, m)
+    return m[np.argsort(np.abs(m), kind="stable")]
+
+
+def moves(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """Shifts (dx, dy, 0) [mm] of the box [lo, hi] to try, in order, where OCC's cut loses a yarn:
+    along x, then along y, the middles of the gaps between the yarns that do not cross that
+    axis's sides (nearest the box's own place first; none within STILL x the cell of it). sections: each yarn's section
+    polygons (M, K, 3) over one period (tetra_solids.yarn_sections)."""
+    out = []
+    for ax in (0, 1):
+        along = [np.stack([one[..., ax].min(axis=1), one[..., ax].max(axis=1)], axis=1)
+                 for y, one in zip(textile.yarns, sections) if not (y.periodic and abs(y.period[ax]) > 1e-9)]
+        extents = np.concatenate(along) if along else np.zeros((0, 2))
+        length = float(hi[ax] - lo[ax])
+        for d in _gap_middles(extents, float(lo[ax]), length):
+            if abs(d) > STILL * length:
+                move = np.zeros(3)
+                move[ax] = d
+                out.append(move)
+    return out
