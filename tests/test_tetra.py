@@ -126,6 +126,67 @@ def test_lost_yarn_fails(loose_plain, comm, monkeypatch):
         tet_mesh(gapped, TetOptions(size=0.5, gap=GAP), comm)
 
 
+@pytest.mark.serial
+def test_stations_beside_a_side_are_left_out_only_where_the_yarn_crosses_it():
+    """With stations 0.25 mm apart, a station nearer than 0.1 mm (BESIDE x spacing) to the side
+    x = 0 of a yarn that crosses it is left out of the skin (x = -0.075 ... 0.075 of a straight
+    yarn along x, stations 0.05 mm apart); a leg running down the side (a binder's, 0.004 mm from it) keeps all its stations, and
+    so does a yarn that runs along y, through the other sides only."""
+    from textile_fenicsx.meshes import tetra_sides
+
+    lo, length = np.array([0.0, -1.0, 0.0]), np.array([4.0, 2.0, 1.0])
+    crossing = np.stack([np.linspace(-0.975, 0.975, 40), np.zeros(40), np.zeros(40)], axis=1)
+    out = tetra_sides.left_out(crossing, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)
+    assert np.flatnonzero(out).tolist() == [18, 19, 20, 21]
+    leg = np.stack([np.full(21, 0.004), np.zeros(21), np.linspace(0.0, 1.0, 21)], axis=1)
+    assert not tetra_sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25).any()
+    along_y = np.stack([np.full(21, 0.004), np.linspace(-0.5, 0.5, 21), np.zeros(21)], axis=1)
+    assert not tetra_sides.left_out(along_y, np.array([0.0, 2.0, 0.0]), lo, length, 0.25).any()
+
+
+@pytest.mark.serial
+def test_the_box_moves_to_the_gaps_between_the_yarns_along_its_sides(reference_dir):
+    """TexGen's orthogonal weave: the weft columns run along y at x = 1.4 + 2.8 k (2.58 mm wide), so
+    the gaps between them are centred on x = 2.8 k. The cell's side x = 0 is one of those middles,
+    so the places tried next are x = 2.8, -2.8 and 5.6 mm; then moves along y."""
+    from textile_fenicsx.meshes import tetra_sides
+    from textile_fenicsx.meshes import tetra_solids as solids
+
+    t = load_model(reference_dir / "models" / "ortho.tg3")
+    o = TetOptions()
+    sections = [solids.yarn_sections(t, i, o.spacing, o.points) for i in range(len(t.yarns))]
+    c = t.cell
+    moves = tetra_sides.moves(t, sections, np.array([c.x0, c.y0, 0.0]), np.array([c.x0 + c.lx, c.y0 + c.ly, 1.0]))
+    assert np.allclose([m[:2] for m in moves[:3]], [[2.8, 0.0], [-2.8, 0.0], [5.6, 0.0]], atol=1e-9)
+    assert all(m[0] == 0.0 and m[1] != 0.0 for m in moves[3:]) and len(moves) > 3
+
+
+@pytest.mark.mpi
+def test_a_yarn_lost_by_the_cut_moves_the_box(loose_plain, comm, monkeypatch):
+    """Where OCC's cut of a skin by the box gives nothing (made to happen here, at the cell's own
+    place), the box moves to the middle of the next gap between the yarns along its sides (2 mm
+    along x, either way, on this plain weave of 2 mm spacing: its corrected wefts are symmetric to
+    3e-6 mm) and the mesh is made there: periodic, every yarn's
+    volume within 1 %, and the move in the report."""
+    from textile_fenicsx.meshes import tetra_solids
+
+    build = tetra_solids.build
+    def lost_at_the_origin(textile, lo, hi, *args, **kwargs):
+        phase, lost = build(textile, lo, hi, *args, **kwargs)
+        return phase, ([0] if lo[0] == textile.cell.x0 else lost)
+
+    monkeypatch.setattr(tetra_solids, "build", lost_at_the_origin)
+    gapped, _ = loose_plain
+    mesh = tet_mesh(gapped, TetOptions(size=0.3, gap=GAP), comm)
+    if comm.rank != 0:
+        assert mesh is None
+        return
+    r = mesh.report
+    assert abs(r["box_moved_mm"][0]) == pytest.approx(2.0, abs=1e-4) and r["box_moved_mm"][1] == 0.0
+    assert r["periodicity"]["periodic"]
+    assert r["volume"]["worst_error_percent"] < 1.0
+
+
 @pytest.mark.mpi
 def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     """The corrected loose plain weave at a coarse size: periodic nodes, no inverted or empty tet,
