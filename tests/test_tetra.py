@@ -130,8 +130,8 @@ def test_lost_yarn_fails(loose_plain, comm, monkeypatch):
 def test_stations_beside_a_side_are_left_out_only_where_the_yarn_crosses_it():
     """With stations 0.25 mm apart, a station nearer than 0.1 mm (BESIDE x spacing) to the side
     x = 0 of a yarn that crosses it is left out of the skin (x = -0.075 ... 0.075 of a straight
-    yarn along x, stations 0.05 mm apart); a leg running down the side (a binder's, 0.004 mm from it) keeps all its stations, and
-    so does a yarn that runs along y, through the other sides only."""
+    yarn along x, stations 0.05 mm apart); a leg running down the side (a binder's, 0.004 mm from
+    it) keeps all its stations, and so does a yarn that runs along y, through the other sides only."""
     from textile_fenicsx.meshes import tetra_sides
 
     lo, length = np.array([0.0, -1.0, 0.0]), np.array([4.0, 2.0, 1.0])
