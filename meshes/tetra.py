@@ -363,17 +363,19 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     lo0, hi0 = _box(textile, options, gap, shrink)
     estimate = check_size(lo0, hi0, options)
     z_pad = None if options.z_range is not None else gap / 2
+    sections = [solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
+                for i in range(len(textile.yarns))]
+    legs = tetra_sides.legs_on_sides(textile, sections, lo0, hi0, options.spacing, gap)
     moves, tried = None, 0
     while True:
         lo, hi = lo0 + move, hi0 + move
-        phase_of, lost = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad)
+        phase_of, lost = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad,
+                                      legs)
         if not lost:
             break
         names = ", ".join(textile.yarns[i].name for i in lost)
         if moves is None:  # where the box may go instead (tetra_sides.moves)
-            moves = tetra_sides.moves(textile, [solids.yarn_sections(textile, i, options.spacing, options.points,
-                                                                     shrink) for i in range(len(textile.yarns))],
-                                      lo0, hi0)[:MOVES]
+            moves = tetra_sides.moves(textile, sections, lo0, hi0)[:MOVES]
         if tried == len(moves):
             raise MeshError(f"the tet mesh of {textile.name!r}: OCC's cut of the skin of {names} by the box gave "
                             f"nothing, with the box at the cell's origin and moved {tried} times along its sides; "

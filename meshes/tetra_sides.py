@@ -6,9 +6,12 @@ The box cuts each yarn's skin, a chain of ruled faces between section stations:
   skin (`left_out`). Otherwise the cut leaves a thin strip of ruled face beside it: a sliver tet on
   the plain weave, 0.07 mm from y1.
 - A station where the yarn runs along the side (its tangent within 60 degrees of the side's plane:
-  a binder's leg) is kept. TexGen's orthogonal binders have vertical legs centred on their weft
-  gaps, x = 0 among them, to 0.004 mm. Left out, a leg's stations took the turn out of its skin,
-  which then cut 0.05 mm into the weft beside it, across a gap of 0.008 mm.
+  a binder's leg) is kept where leaving out every station near a side would move a skin by more
+  than LEGS x the gap (`legs_on_sides`). TexGen's orthogonal binders have vertical legs centred on
+  their weft gaps, x = 0 among them, to 0.004 mm. Left out, a leg's stations took the turn out of
+  its skin, which then cut 0.05 mm into the weft beside it, across a gap of 0.008 mm. Our own
+  orthogonal weave's binders, and the angle interlock and layer-to-layer weaves', meshed with them
+  left out (their skins moved by 6.2-6.8 x the gap) and lose a binder in OCC's cut with them kept.
 - OCC's cut of such a binder's skin by the box at x = 0 returned nothing, for any station rule
   tried. The same cut at x = 2.8 or 5.6 mm, through legs of the same shape, keeps the binder.
   A periodic cell's box may start anywhere, so where a yarn is lost in the cut the box moves
@@ -28,22 +31,57 @@ BESIDE = 0.4
 CROSSING = 0.5
 # a move by less than this fraction of the cell is the box where it is
 STILL = 0.01
+# legs keep their stations where leaving out the stations near the sides would move a skin by more
+# than this many gaps: 13.5-14.6 on TexGen's orthogonal weaves (which then failed), 6.2-6.8 on our
+# orthogonal weave, the angle interlock and layer-to-layer weaves (which meshed), 0.12 at most on
+# the 2D weaves
+LEGS = 10.0
 
 
 def left_out(centre: np.ndarray, period: np.ndarray, lo: np.ndarray, length: np.ndarray,
-             spacing: float) -> np.ndarray:
+             spacing: float, legs: bool = False) -> np.ndarray:
     """Which stations (centres (M, 3) [mm], a chain of a periodic yarn) to leave out of its skin:
     nearer than BESIDE x spacing to a side of the box [lo, lo + length] (or its periodic images)
-    that the yarn runs through, where the yarn crosses it; never the chain's ends."""
+    that the yarn runs through; with `legs`, only where the yarn crosses it (a leg running down
+    the side keeps its stations); never the chain's ends."""
     tangent = np.gradient(centre, axis=0)
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1), 1e-12)[:, None]
     out = np.zeros(len(centre), bool)
     for ax in (0, 1):
         if abs(period[ax]) > 1e-9:
             r = (centre[:, ax] - lo[ax]) / length[ax]
-            out |= (np.abs(r - np.round(r)) * length[ax] < BESIDE * spacing) & (np.abs(tangent[:, ax]) > CROSSING)
+            near = np.abs(r - np.round(r)) * length[ax] < BESIDE * spacing
+            out |= near & (np.abs(tangent[:, ax]) > CROSSING) if legs else near
     out[[0, -1]] = False
     return out
+
+
+def strays(sec: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """How far [mm] the skin ruled between the stations kept passes from the sections (M, K, 3) of
+    each station left out: the largest distance of a section point from the point of the same index
+    interpolated by arc length between the kept stations on either side."""
+    centre = sec.mean(axis=1)
+    arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0), axis=1))))
+    kept, out = np.flatnonzero(~left), np.flatnonzero(left)
+    after = np.searchsorted(kept, out)
+    a, b = kept[after - 1], kept[after]
+    w = ((arc[out] - arc[a]) / (arc[b] - arc[a]))[:, None, None]
+    return np.linalg.norm(sec[out] - ((1 - w) * sec[a] + w * sec[b]), axis=-1).max(axis=1)
+
+
+def legs_on_sides(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, hi: np.ndarray, spacing: float,
+                  gap: float) -> bool:
+    """Whether the skins must keep the legs' stations on the box's sides: leaving out every station
+    near a side moves some skin by more than LEGS x the gap (module docstring). sections: each
+    yarn's section polygons (M, K, 3) over one period (tetra_solids.yarn_sections)."""
+    worst = 0.0
+    for y, one in zip(textile.yarns, sections):
+        if y.periodic:
+            chain = np.concatenate([one[:-1] + k * y.period for k in (-1, 0, 1)] + [one[-1:] + y.period])
+            left = left_out(chain.mean(axis=1), y.period, lo, hi - lo, spacing)
+            if left.any():
+                worst = max(worst, float(strays(chain, left).max()))
+    return worst > LEGS * gap
 
 
 def _gap_middles(extents: np.ndarray, lo: float, length: float) -> np.ndarray:

@@ -66,12 +66,13 @@ def add_skin(sections: np.ndarray, name: str) -> int:
 
 
 def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
-           shrink: float = 0.0, margin: int = MARGIN) -> list[np.ndarray]:
+           shrink: float = 0.0, margin: int = MARGIN, legs: bool = False) -> list[np.ndarray]:
     """Yarn i's copies over the box [lo, hi]: section polygons (M, K, 3) [mm] per copy. A periodic
     yarn's copy is a chain of its periods, one per lateral shift by the cell's vectors, trimmed to
     the stations whose sections reach the box plus `margin` stations at each end (so that the box
-    cuts its skin where the ends no longer shape it); a piece's copies are the piece moved by the
-    cell's vectors."""
+    cuts its skin where the ends no longer shape it), less the stations beside the box's sides
+    (tetra_sides.left_out; `legs`: a leg down a side keeps its own); a piece's copies are the
+    piece moved by the cell's vectors."""
     yarn = textile.yarns[i]
     one = yarn_sections(textile, i, spacing, points, shrink)
     L = hi - lo
@@ -99,13 +100,13 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
         if yarn.periodic:
             sec = sec[max(meets[0] - margin, 0):meets[-1] + margin + 1]
             # no station just beside a side of the box that the yarn crosses (tetra_sides)
-            sec = sec[~sides.left_out(sec.mean(axis=1), yarn.period, lo, L, spacing)]
+            sec = sec[~sides.left_out(sec.mean(axis=1), yarn.period, lo, L, spacing, legs)]
         out.append(sec)
     return out
 
 
 def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, points: int,
-          shrink: float = 0.0, z_pad: float | None = None) -> tuple[dict[int, int], list[int]]:
+          shrink: float = 0.0, z_pad: float | None = None, legs: bool = False) -> tuple[dict[int, int], list[int]]:
     """The model of the box [lo, hi] with every yarn's pieces in it, fragmented into one
     conforming model (gmsh must be initialised, a model current). Returns volume tag -> phase
     (0 the matrix, 1 + i yarn i), and the yarns whose skins reach the box but which OCC's cut by
@@ -117,7 +118,7 @@ def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, poin
 
     occ = gmsh.model.occ
     skins = [(i, add_skin(sections, y.name)) for i, y in enumerate(textile.yarns)
-             for sections in chains(textile, i, lo, hi, spacing, points, shrink)]
+             for sections in chains(textile, i, lo, hi, spacing, points, shrink, legs=legs)]
     if z_pad is not None and skins:
         z0, z1 = _z_bounds([t for _, t in skins])
         lo[2], hi[2] = min(lo[2], z0 - z_pad), max(hi[2], z1 + z_pad)

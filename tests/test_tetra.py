@@ -131,7 +131,8 @@ def test_stations_beside_a_side_are_left_out_only_where_the_yarn_crosses_it():
     """With stations 0.25 mm apart, a station nearer than 0.1 mm (BESIDE x spacing) to the side
     x = 0 of a yarn that crosses it is left out of the skin (x = -0.075 ... 0.075 of a straight
     yarn along x, stations 0.05 mm apart); a leg running down the side (a binder's, 0.004 mm from
-    it) keeps all its stations, and so does a yarn that runs along y, through the other sides only."""
+    it) keeps all its stations where legs are kept (all but its ends are left out otherwise), and
+    a yarn that runs along y, through the other sides only, keeps all its own."""
     from textile_fenicsx.meshes import tetra_sides
 
     lo, length = np.array([0.0, -1.0, 0.0]), np.array([4.0, 2.0, 1.0])
@@ -139,9 +140,29 @@ def test_stations_beside_a_side_are_left_out_only_where_the_yarn_crosses_it():
     out = tetra_sides.left_out(crossing, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)
     assert np.flatnonzero(out).tolist() == [18, 19, 20, 21]
     leg = np.stack([np.full(21, 0.004), np.zeros(21), np.linspace(0.0, 1.0, 21)], axis=1)
-    assert not tetra_sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25).any()
+    assert not tetra_sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25, legs=True).any()
+    assert tetra_sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)[1:-1].all()  # without legs
     along_y = np.stack([np.full(21, 0.004), np.linspace(-0.5, 0.5, 21), np.zeros(21)], axis=1)
     assert not tetra_sides.left_out(along_y, np.array([0.0, 2.0, 0.0]), lo, length, 0.25).any()
+
+
+@pytest.mark.serial
+def test_legs_keep_their_stations_only_where_leaving_them_out_strays_far(reference_dir):
+    """TexGen's orthogonal weave: its binders' legs run down the cell's x = 0 side; leaving out
+    their stations moves the skins by more than 10 x the 5 % gap (13.5-14.6 x on the sweep's
+    corrected orthogonal weaves): they keep them. The plain weave's yarns cross the sides at a
+    shallow angle (at most 0.12 x): stations beside the sides are left out, as before."""
+    from textile_fenicsx.meshes import tetra_sides
+    from textile_fenicsx.meshes import tetra_solids as solids
+    from textile_fenicsx.meshes.tetra import default_gap
+
+    o = TetOptions()
+    for name, legs in (("ortho", True), ("plain", False)):
+        t = load_model(reference_dir / "models" / f"{name}.tg3")
+        sections = [solids.yarn_sections(t, i, o.spacing, o.points) for i in range(len(t.yarns))]
+        c = t.cell
+        lo, hi = np.array([c.x0, c.y0, 0.0]), np.array([c.x0 + c.lx, c.y0 + c.ly, 1.0])
+        assert tetra_sides.legs_on_sides(t, sections, lo, hi, o.spacing, default_gap(t, o)) is legs
 
 
 @pytest.mark.serial
