@@ -5,13 +5,13 @@ The box cuts each yarn's skin, a chain of ruled faces between section stations:
 - A station of a yarn that crosses a side, nearer than BESIDE x spacing to it, is left out of the
   skin (`left_out`). Otherwise the cut leaves a thin strip of ruled face beside it: a sliver tet on
   the plain weave, 0.07 mm from y1.
-- A station where the yarn runs along the side (its tangent within 60 degrees of the side's plane:
+- A station where the yarn runs along the side (its tangent within 30 degrees of the side's plane:
   a binder's leg) is kept where leaving out every station near a side would move a skin by more
   than LEGS x the gap (`legs_on_sides`). TexGen's orthogonal binders have vertical legs centred on
   their weft gaps, x = 0 among them, to 0.004 mm. Left out, a leg's stations took the turn out of
   its skin, which then cut 0.05 mm into the weft beside it, across a gap of 0.008 mm. Our own
-  orthogonal weave's binders, and the angle interlock and layer-to-layer weaves', meshed with them
-  left out (their skins moved by 6.2-6.8 x the gap) and lose a binder in OCC's cut with them kept.
+  orthogonal weave, and the angle interlock and layer-to-layer weaves, meshed with them left out
+  (their skins moved by 6.2-6.8 x the gap); ours lost a binder in OCC's cut with them kept.
 - OCC's cut of such a binder's skin by the box at x = 0 returned nothing, for any station rule
   tried. The same cut at x = 2.8 or 5.6 mm, through legs of the same shape, keeps the binder.
   A periodic cell's box may start anywhere, so where a yarn is lost in the cut the box moves
