@@ -374,8 +374,8 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         if not lost:
             break
         names = ", ".join(textile.yarns[i].name for i in lost)
-        if moves is None:  # where the box may go instead (tetra_sides.moves)
-            moves = tetra_sides.moves(textile, sections, lo0, hi0)[:MOVES]
+        if moves is None:  # where the box may go instead (tetra_sides.moves), not where it is
+            moves = [m for m in tetra_sides.moves(textile, sections, lo0, hi0) if not np.allclose(m, move)][:MOVES]
         if tried == len(moves):
             raise MeshError(f"the tet mesh of {textile.name!r}: OCC's cut of the skin of {names} by the box gave "
                             f"nothing, with the box at the cell's origin and moved {tried} times along its sides; "
