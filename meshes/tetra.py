@@ -267,6 +267,20 @@ def _background(axes: list[np.ndarray], h: np.ndarray, folder: str) -> None:
     gmsh.model.mesh.field.setAsBackgroundMesh(field)
 
 
+def mesh_surfaces() -> None:
+    """gmsh's surface mesh of the model. The Structured size field (_background) reads its file at
+    its first use, unguarded: two threads meshing curves at once both read it, and one frees what
+    the other reads (a segfault in gmsh 4.13). So the curves are meshed on one thread, which reads
+    the file, and the surfaces on every thread."""
+    import gmsh
+
+    threads = gmsh.option.getNumber("General.NumThreads")
+    gmsh.option.setNumber("General.NumThreads", 1)
+    gmsh.model.mesh.generate(1)
+    gmsh.option.setNumber("General.NumThreads", threads)
+    gmsh.model.mesh.generate(2)
+
+
 def _nodes() -> tuple[np.ndarray, np.ndarray]:
     """The current gmsh model's nodes (N, 3) and the row of each node tag (-1: no such tag)."""
     import gmsh
@@ -407,7 +421,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
                         ("Mesh.Optimize", 1)):
         gmsh.option.setNumber(name, value)
     t = time.perf_counter()
-    gmsh.model.mesh.generate(2)
+    mesh_surfaces()
     times["surfaces_s"] = time.perf_counter() - t
     log.info("tet: surface mesh %.1f s", times["surfaces_s"])
     return lo, hi, pairs, phase_of, move

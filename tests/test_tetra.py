@@ -241,6 +241,36 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     assert set(back.field_data) == {"matrix", *mesh.yarn_names}
 
 
+
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_the_api_meshes_the_satin_in_a_process_without_dolfinx(reference_dir, tmp_path):
+    """gmsh's Structured size field reads its file at first use, unguarded. Meshing curves on two
+    threads, both read it and one frees the buffer the other fills: `tfx.volume_mesh(..., kind
+    "tet")` on the corrected satin died (SIGSEGV) in 5 of 5 fresh Python processes that had not
+    imported DOLFINx (the CLI and the tests import it first, which narrowed the window; a small
+    model did not show it). The curves are now meshed on one thread (tetra.mesh_surfaces)."""
+    import subprocess
+    import sys
+
+    from textile_fenicsx.api import solve
+    from textile_fenicsx.meshes.tetra import default_gap
+    from textile_fenicsx.tg3 import write_tg3
+
+    textile = load_model(reference_dir / "models" / "satin4.tg3")
+    gap = default_gap(textile, TetOptions())
+    model = write_tg3(solve(textile, seed=0.5, solver=SolverOptions(min_gap=gap)).corrected, tmp_path / "c.tg3")
+    script = ("import sys; import textile_fenicsx as tfx; from textile_fenicsx.volumes import VolumeOptions, "
+              "volume_mesh; m = volume_mesh(tfx.read(sys.argv[1]), VolumeOptions('tet', 0.25, yarn_vf=0.6)); "
+              "assert 'dolfinx' not in sys.modules; print(m.report['elements'], m.report['volume']['worst_error_percent'])")
+    for _ in range(2):
+        run = subprocess.run([sys.executable, "-c", script, str(model)], capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr[-2000:]
+        elements, worst = run.stdout.split()[-2:]
+        assert int(elements) > 100_000 and float(worst) < 1.0
+
 @pytest.mark.sweep
 @pytest.mark.serial
 def test_volume_stage_family():
