@@ -241,9 +241,6 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     assert set(back.field_data) == {"matrix", *mesh.yarn_names}
 
 
-
-
-
 @pytest.mark.slow
 @pytest.mark.serial
 def test_the_api_meshes_the_satin_in_a_process_without_dolfinx(reference_dir, tmp_path):
@@ -271,6 +268,7 @@ def test_the_api_meshes_the_satin_in_a_process_without_dolfinx(reference_dir, tm
         assert run.returncode == 0, run.stderr[-2000:]
         elements, worst = run.stdout.split()[-2:]
         assert int(elements) > 100_000 and float(worst) < 1.0
+
 
 @pytest.mark.sweep
 @pytest.mark.serial
