@@ -58,15 +58,15 @@ def _mesh_record(folder: Path) -> dict:
             "overlap_volume": r.get("overlap", {}).get("volume", 0.0), "periodic": r["periodicity"]["periodic"]}
 
 
-def _keep(folder: Path, keep: Path | None, name: str) -> None:
+def _keep(folder: Path, keep: Path | None, name: str, prefix: str = "") -> None:
     """Copy the run's corrected model, metrics and mesh report to keep/name/ (to re-mesh a failure
-    without solving again)."""
+    without solving again; a mesh's report as prefix + mesh_report.json)."""
     if keep is None or not folder.is_dir():
         return
     (keep / name).mkdir(parents=True, exist_ok=True)
     for f in ("corrected.tg3", "metrics.json", "mesh_report.json"):
         if (folder / f).is_file():
-            shutil.copy(folder / f, keep / name / f)
+            shutil.copy(folder / f, keep / name / (prefix + f))
 
 
 def run_case(name: str, voxel: float, tet: float, keep: Path | None = None) -> dict:
@@ -95,6 +95,7 @@ def run_case(name: str, voxel: float, tet: float, keep: Path | None = None) -> d
                                      str(tet), "--gap", f"{gap:.6g}", "--out", str(tmp / "tet"), timeout=TET_TIMEOUT)
             record["tet"] = {"exit": code, "error": err, "seconds": sec,
                              **(_mesh_record(tmp / "tet") if code == 0 else {})}
+            _keep(tmp / "tet", keep, name, "tet_")
             code, err, sec = command("volume-mesh", str(tmp / "run" / "corrected.tg3"), "--kind", "voxel", "--size",
                                      str(voxel), "--out", str(tmp / "voxel"))
             record["voxel"] = {"exit": code, "error": err, "seconds": sec,
