@@ -115,6 +115,8 @@ def _spline_area(points: np.ndarray) -> float:
     (tetra_solids.add_skin: OCC's addSpline, closed on its first point), read on a fine mesh."""
     import gmsh
 
+    from textile_fenicsx.meshes.tetra import _nodes
+
     started = not gmsh.isInitialized()
     if started:
         gmsh.initialize(interruptible=False)
@@ -128,10 +130,8 @@ def _spline_area(points: np.ndarray) -> float:
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.01)
         gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 100)
         gmsh.model.mesh.generate(2)
-        nodes, xyz, _ = gmsh.model.mesh.getNodes()
-        row = np.full(int(nodes.max()) + 1, -1)
-        row[nodes.astype(int)] = np.arange(len(nodes))
-        tri = xyz.reshape(-1, 3)[row[gmsh.model.mesh.getElements(2, face)[2][0].astype(int)]].reshape(-1, 3, 3)
+        xyz, row = _nodes()
+        tri = xyz[row[gmsh.model.mesh.getElements(2, face)[2][0].astype(np.int64)]].reshape(-1, 3, 3)
         return float(0.5 * np.abs(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2]).sum())
     finally:
         gmsh.model.remove()
