@@ -49,16 +49,23 @@ def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink:
     return out
 
 
-def add_skin(sections: np.ndarray, name: str) -> int:
-    """The solid through the section polygons (M, K, 3) (its OCC tag): one closed C2 spline per
-    station, a smooth skin through them, capped by the first and last sections."""
+def section_curve(poly: np.ndarray) -> int:
+    """The closed C2 spline through one section's points (K, 3), closed on its first point (its
+    OCC curve tag)."""
     import gmsh
 
     occ = gmsh.model.occ
-    wires = []
-    for poly in sections:
-        tags = [occ.addPoint(*p) for p in poly]
-        wires.append(occ.addWire([occ.addSpline(tags + tags[:1])]))
+    tags = [occ.addPoint(*p) for p in poly]
+    return occ.addSpline(tags + tags[:1])
+
+
+def add_skin(sections: np.ndarray, name: str) -> int:
+    """The solid through the section polygons (M, K, 3) (its OCC tag): one closed spline per
+    station (section_curve), a smooth skin through them, capped by the first and last sections."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    wires = [occ.addWire([section_curve(poly)]) for poly in sections]
     vols = [t for d, t in occ.addThruSections(wires, makeSolid=True, makeRuled=True) if d == 3]
     if len(vols) != 1:
         raise RuntimeError(f"the skin of {name} gave {len(vols)} solids")

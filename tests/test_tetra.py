@@ -112,10 +112,11 @@ def test_the_reference_volume_is_the_yarn_surface_the_rays_converge_to(reference
 
 def _spline_area(points: np.ndarray) -> float:
     """The area [mm^2] inside the closed spline the mesher lays through a section's points
-    (tetra_solids.add_skin: OCC's addSpline, closed on its first point), read on a fine mesh."""
+    (tetra_solids.section_curve, as the skins use it), read on a fine mesh."""
     import gmsh
 
     from textile_fenicsx.meshes.tetra import _nodes
+    from textile_fenicsx.meshes.tetra_solids import section_curve
 
     started = not gmsh.isInitialized()
     if started:
@@ -124,8 +125,8 @@ def _spline_area(points: np.ndarray) -> float:
     gmsh.model.add("section")
     try:
         occ = gmsh.model.occ
-        tags = [occ.addPoint(x, y, 0.0) for x, y in points]
-        face = occ.addPlaneSurface([occ.addCurveLoop([occ.addSpline(tags + tags[:1])])])
+        flat = np.column_stack((points, np.zeros(len(points))))
+        face = occ.addPlaneSurface([occ.addCurveLoop([section_curve(flat)])])
         occ.synchronize()
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.01)
         gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 100)
