@@ -10,11 +10,15 @@ so a chain is exactly periodic, and the box cuts a yarn at x0 and at x0 + lx in 
 curves moved by the cell vector (a smooth skin through all the stations is fitted globally: the
 two cuts of the plain weave differed by 0.7 % in area). Each chain is intersected with the box
 alone (its pieces are what of the yarn lies in the cell: the parts that leave through a side are
-the next copy's coming back through the opposite one), then the box is fragmented by all the
-pieces with OCC's glue option (the pieces do not cross the box's faces, they lie on them: 29 s on
-the satin instead of 48 s without). OCC still searches every face of a yarn against the faces of
-the yarns near it for intersections (there are none: meshes/tetra.py holds a gap between them);
-that search is most of the time.
+the next copy's coming back through the opposite one). The faces of those cuts are then
+imprinted on the box's faces (copies of them, cut into the box alone: planar, quick), so that
+each one lies on the box as a whole face, and the box is fragmented by all the pieces with OCC's
+full glue: the arguments share whole faces and nothing else, and OCC does not search every face
+of a yarn against the faces of the yarns near it for intersections (there are none:
+meshes/tetra.py holds a gap between them, and tetra_checks finds skins that cross in it). With
+the partial glue (option 1) this fragment used before, that search was most of the mesher's time:
+on the corrected satin the fragment took 99 s with it, 5 s now (one thread, under load; its four
+parallel warps alone, 1 s with it); docs/tet_mesh.md.
 """
 
 from __future__ import annotations
@@ -30,9 +34,9 @@ log = logging.getLogger(__name__)
 
 # Stations a periodic yarn's chain goes on beyond the box at each end.
 MARGIN = 6
-# OCC's glue option for the last fragment (1: the arguments do not intersect, they only touch:
-# the pieces lie in the box and touch its sides)
-GLUE = 1
+# OCC's glue option for the last fragment (2, full: the arguments share whole faces and do not
+# intersect; the pieces lie in the box, and their cut faces are imprinted on its sides first)
+GLUE = 2
 
 
 def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink: float = 0.0) -> np.ndarray:
@@ -133,18 +137,82 @@ def build(textile: Textile, lo: np.ndarray, hi: np.ndarray, spacing: float, poin
     for i, solid in skins:
         cut, _ = occ.intersect([(3, solid)], [(3, occ.addBox(*lo, *(hi - lo)))])
         pieces += [(i, t) for d, t in cut if d == 3]
-    glue = gmsh.option.getNumber("Geometry.OCCBooleanGlue")
-    gmsh.option.setNumber("Geometry.OCCBooleanGlue", GLUE)
+    spare = occ.copy([(3, t) for _, t in pieces])  # for the slow fragment, should the quick one fail
+    phase = _fragment(_imprinted_box(lo, hi, [t for _, t in pieces]), pieces, GLUE)
+    uncarved = sorted({p - 1 for v, p in phase.items() if p and not _carved(v, lo, hi)})
+    if uncarved:
+        log.warning("tet: OCC's quick fragment (full glue) left the matrix uncarved around %s; fragmenting "
+                    "again with the partial glue (slower)", ", ".join(textile.yarns[i].name for i in uncarved))
+        occ.remove([(3, v) for v in phase], recursive=True)
+        pieces = [(i, t) for (i, _), (_, t) in zip(pieces, spare)]
+        phase = _fragment(occ.addBox(*lo, *(hi - lo)), pieces, 1)
+    else:
+        occ.remove(spare, recursive=True)
+        occ.synchronize()
+    return phase, sorted({i for i, _ in skins} - {i for i, _ in pieces})
+
+
+def _fragment(box: int, pieces: list[tuple[int, int]], glue: int) -> dict[int, int]:
+    """The box fragmented by the (yarn, piece) pieces with OCC's glue option `glue`: volume tag ->
+    phase (0 the matrix, 1 + i yarn i)."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    old = gmsh.option.getNumber("Geometry.OCCBooleanGlue")
+    gmsh.option.setNumber("Geometry.OCCBooleanGlue", glue)
     try:
-        _, parts = occ.fragment([(3, occ.addBox(*lo, *(hi - lo)))], [(3, t) for _, t in pieces])
+        _, parts = occ.fragment([(3, box)], [(3, t) for _, t in pieces])
     finally:
-        gmsh.option.setNumber("Geometry.OCCBooleanGlue", glue)
+        gmsh.option.setNumber("Geometry.OCCBooleanGlue", old)
     occ.synchronize()
     phase = {t: 0 for _, t in parts[0]}
     for (i, _), part in zip(pieces, parts[1:]):
         for _, t in part:
             phase[t] = i + 1
-    return phase, sorted({i for i, _ in skins} - {i for i, _ in pieces})
+    return phase
+
+
+def _on_box(face: int, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether a face lies on one of the box's faces (planar, in its plane: where the box cut a yarn)."""
+    import gmsh
+
+    if gmsh.model.getType(2, face) != "Plane":
+        return False
+    b = np.reshape(gmsh.model.occ.getBoundingBox(2, face), (2, 3))
+    c = np.asarray(gmsh.model.occ.getCenterOfMass(2, face))
+    flat, on = 1e-3 * float(np.max(hi - lo)), 1e-9 * float(np.max(hi - lo))  # OCC pads a face's box
+    return any(b[1, ax] - b[0, ax] < flat and min(abs(c[ax] - lo[ax]), abs(c[ax] - hi[ax])) < on for ax in range(3))
+
+
+def _carved(volume: int, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether every face of a yarn's volume is shared with another volume or lies on the box's faces
+    (otherwise the matrix overlaps it: OCC's full glue did not carve the matrix around it)."""
+    import gmsh
+
+    for _, f in gmsh.model.getBoundary([(3, volume)], combined=False, oriented=False):
+        up, _ = gmsh.model.getAdjacencies(2, f)
+        if len(up) < 2 and not _on_box(f, lo, hi):
+            return False
+    return True
+
+
+def _imprinted_box(lo: np.ndarray, hi: np.ndarray, pieces: list[int]) -> int:
+    """The box [lo, hi] (its OCC tag) with the pieces' faces that lie on its faces (where the box
+    cut them) imprinted on those: copies of them, fragmenting the box alone."""
+    import gmsh
+
+    occ = gmsh.model.occ
+    occ.synchronize()
+    faces = [f for _, f in gmsh.model.getBoundary([(3, t) for t in pieces], combined=False, oriented=False)
+             if _on_box(f, lo, hi)]
+    box = occ.addBox(*lo, *(hi - lo))
+    if not faces:
+        return box
+    out, _ = occ.fragment([(3, box)], occ.copy([(2, f) for f in faces]))
+    volumes = [t for d, t in out if d == 3]
+    if len(volumes) != 1:
+        raise RuntimeError(f"imprinting the cut faces on the box gave {len(volumes)} volumes")
+    return volumes[0]
 
 
 def _z_bounds(solids: list[int]) -> tuple[float, float]:

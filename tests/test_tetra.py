@@ -287,6 +287,66 @@ def test_a_yarn_lost_by_the_cut_moves_the_box(loose_plain, comm, monkeypatch):
     assert r["volume"]["worst_error_percent"] < 1.0
 
 
+@pytest.mark.serial
+def test_an_uncarved_matrix_is_seen():
+    """The quick fragment's check (tetra_solids._carved): a yarn's volume lying in the box without
+    being cut out of it (its faces shared with no other volume: what OCC's full glue left around
+    one weft of the angle interlock) is uncarved; a rod through the box, cut by it and fragmented
+    with the full glue after its cut faces are imprinted, is carved: its two end faces lie on the
+    box's sides and every other face is shared with the matrix."""
+    import gmsh
+
+    from textile_fenicsx.meshes import tetra_solids
+
+    lo, hi = np.zeros(3), np.ones(3)
+    gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        occ = gmsh.model.occ
+        gmsh.model.add("inside")
+        occ.addBox(0, 0, 0, 1, 1, 1)
+        ball = occ.addSphere(0.5, 0.5, 0.5, 0.3)
+        occ.synchronize()
+        assert not tetra_solids._carved(ball, lo, hi)
+        gmsh.model.add("through")
+        rod = occ.intersect([(3, occ.addCylinder(-0.5, 0.4, 0.5, 2.0, 0.1, 0.0, 0.2))],
+                            [(3, occ.addBox(0, 0, 0, 1, 1, 1))])[0][0][1]
+        box = tetra_solids._imprinted_box(lo, hi, [rod])
+        phase = tetra_solids._fragment(box, [(0, rod)], tetra_solids.GLUE)
+        assert sorted(phase.values()) == [0, 1]
+        (yarn,) = [v for v, p in phase.items() if p == 1]
+        ends = [f for _, f in gmsh.model.getBoundary([(3, yarn)], combined=False, oriented=False)
+                if tetra_solids._on_box(f, lo, hi)]
+        assert len(ends) == 2 and tetra_solids._carved(yarn, lo, hi)
+    finally:
+        gmsh.finalize()
+
+
+@pytest.mark.mpi
+def test_an_uncarved_matrix_is_fragmented_again(loose_plain, comm, monkeypatch):
+    """Where the quick fragment leaves the matrix uncarved around a yarn (made to happen here), the
+    box is fragmented again with OCC's partial glue, and the mesh is made as usual: periodic,
+    every yarn's volume within 1 %, no element in two yarns."""
+    from textile_fenicsx.meshes import tetra_solids
+
+    checked = []
+    def none_carved(volume, lo, hi):
+        checked.append(volume)
+        return False
+
+    monkeypatch.setattr(tetra_solids, "_carved", none_carved)
+    gapped, _ = loose_plain
+    mesh = tet_mesh(gapped, TetOptions(size=0.3, gap=GAP), comm)
+    if comm.rank != 0:
+        assert mesh is None
+        return
+    assert checked
+    r = mesh.report
+    assert r["periodicity"]["periodic"] and r["volume"]["worst_error_percent"] < 1.0
+    assert r["phases"]["in_two_yarns"] == 0
+    assert set(np.unique(mesh.phase)) == set(range(len(gapped.yarns) + 1))
+
+
 @pytest.mark.mpi
 def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     """The corrected loose plain weave at a coarse size: periodic nodes, no inverted or empty tet,
