@@ -33,9 +33,12 @@ BYTES_PER_RANK = 0.3e9
 # 6.6 kB/dof (GAMG's parallel setup), so estimates scale the per-dof part with the ranks. First
 # order has fewer entries per row: Q1 hexahedra on 2 ranks peaked at 2.49 GB per rank with 1.17e6
 # dofs (2026-11-26, the voxel satin of README's refinement study), 1.9 kB/dof and rank; P1 tets
-# are not measured, and take P2's figure.
-HOMOGENISE_BYTES_PER_DOF = {("tetrahedron", 2): 2.6e3, ("hexahedron", 2): 4.5e3,
-                            ("tetrahedron", 1): 2.6e3, ("hexahedron", 1): 2.0e3}
+# are not measured, and take P2's figure. Since 2026-11-27 the elastic operator is also held in
+# block CSR (cellproblem.py): bench/volume_bench.py then measured serially 3.5 kB/dof on P2
+# tetrahedra (4.62 and 6.13 GB at 1.33 and 1.76 M dofs) and 6.3 kB/dof on Q2 hexahedra (2.66 GB at
+# 421k); Q1 takes its 2026-11-26 figure plus the copy (27 entries a row, 8.4 bytes each).
+HOMOGENISE_BYTES_PER_DOF = {("tetrahedron", 2): 3.6e3, ("hexahedron", 2): 6.5e3,
+                            ("tetrahedron", 1): 3.6e3, ("hexahedron", 1): 2.3e3}
 
 
 def available_memory() -> float:
