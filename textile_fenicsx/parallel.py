@@ -7,10 +7,14 @@ replaces sys.excepthook: the traceback is printed with the rank in front of ever
 MPI_Abort ends the whole job with exit code 1. Exceptions that a program catches (pytest catches
 every test's) never reach the hook, so pytest under mpirun reports failures as usual; SystemExit
 does not reach it either.
+
+`wait_asleep(comm)` is a barrier at which the waiting ranks sleep: where rank 0 alone works on
+several threads (gmsh's tet mesh), ranks spinning in MPI would take its cores.
 """
 
 import os
 import sys
+import time
 import traceback
 
 
@@ -25,6 +29,16 @@ def mpi_world_size() -> int:
             except ValueError:
                 pass
     return 1
+
+
+def wait_asleep(comm, poll: float = 0.05) -> None:
+    """Return on every rank of comm once all have called it; a rank waiting polls every `poll`
+    seconds and sleeps in between. (OpenMPI's waits spin; with yield_when_idle they call
+    sched_yield, which Linux honours loosely: a rank waiting that way still competes with rank 0's
+    threads for the cores.)"""
+    request = comm.Ibarrier()
+    while not request.Test():
+        time.sleep(poll)
 
 
 def _abort_on_uncaught(kind, value, tb) -> None:
