@@ -10,8 +10,10 @@ them, each in a fresh process, serially and on 2 ranks:
 It reports per command the wall time, the peak resident memory of the largest process, the mesh's
 elements, the cell problems' unknowns and CG iterations, and writes output/volume_bench.json:
 
-    python3 bench/volume_bench.py [--kinds voxel tet] [--ranks 1 2] [--sizes voxel=0.2 tet=0.25]
+    python3 bench/volume_bench.py [--kinds voxel tet] [--ranks 1 2] [--sizes voxel=0.2 tet=0.35]
                                   [--degree 2]
+
+(the sizes by default each kind's default, volumes.DEFAULT_SIZE).
 
 Several sizes per kind (`--sizes voxel=0.2,0.1 tet=0.35,0.25`) make a refinement study: the table then
 gives each engineering constant's change from the size before, and voxel against tet at the finest.
@@ -89,7 +91,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--kinds", nargs="+", default=["voxel", "tet"])
     parser.add_argument("--ranks", nargs="+", type=int, default=[1, 2])
-    parser.add_argument("--sizes", nargs="+", default=["voxel=0.2", "tet=0.25"], metavar="KIND=H[,H...]")
+    parser.add_argument("--sizes", nargs="+", default=["voxel=0.2", "tet=0.35"], metavar="KIND=H[,H...]")
     parser.add_argument("--degree", type=int, default=2, choices=[1, 2])
     parser.add_argument("--out", type=Path, default=REPO / "output" / "volume_bench.json")
     args = parser.parse_args()

@@ -66,10 +66,11 @@ def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, 
     return run(textile, Settings(**settings), comm or MPI.COMM_WORLD)
 
 
-def volume_mesh(textile, kind: str = "voxel", size: float = 0.2, comm=None, **options) -> CellMesh:
+def volume_mesh(textile, kind: str = "voxel", size: float | None = None, comm=None, **options) -> CellMesh:
     """The periodic volume mesh of a model (a Textile, or a model file's path): `kind` "voxel" or
-    "tet", element size `size` [mm]; other VolumeOptions by name (yarn_vf, z_range, memory_limit,
-    and for tet the TetOptions' own). `.write(folder)` writes its files."""
+    "tet", element size `size` [mm] (default 0.2 for voxel, 0.35 for tet); other VolumeOptions by
+    name (yarn_vf, z_range, memory_limit, and for tet the TetOptions' own). `.write(folder)` writes
+    its files."""
     from mpi4py import MPI
 
     from textile_fenicsx.volumes import VolumeOptions, mesh_cell

@@ -32,8 +32,8 @@ VOLUME_DESCRIPTION = (
 
 def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
     """The volume mesh's options (on `volume-mesh`, and on `solve` with the prefix 'volume-')."""
-    p.add_argument(f"--{prefix}size", type=float, default=0.2, metavar="H",
-                   help="element size [mm] (default 0.2)")
+    p.add_argument(f"--{prefix}size", type=float, metavar="H",
+                   help="element size [mm] (default 0.2 for voxel, 0.35 for tet)")
     p.add_argument("--yarn-vf", type=float, metavar="V",
                    help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
                    "(default: from the fibre data; 0.65 with a warning where there is none)")

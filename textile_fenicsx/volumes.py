@@ -19,6 +19,7 @@ from mpi4py import MPI
 from textile_fenicsx import limits
 from textile_fenicsx.errors import MeshError, TextileError
 from textile_fenicsx.meshes.volume import KINDS, VolumeMesh, cell_box
+from textile_fenicsx.parallel import wait_asleep
 from textile_fenicsx.textile import Textile
 
 if TYPE_CHECKING:
@@ -29,31 +30,43 @@ log = logging.getLogger(__name__)
 # The densest packing of parallel round fibres (hexagonal): no yarn can hold more.
 MAX_PACKING = np.pi / (2 * np.sqrt(3))
 
+# The element size [mm] of each kind where none is given. voxel: 0.2, homogenised in about a minute
+# on 2 ranks (coarse: the corrected satin's Ex 8 % below the tet's, README). tet: 0.35, the volume
+# sweep's size (docs/sweep.md); on the corrected satin every engineering constant moves by at most
+# 0.07 % from 0.35 to 0.25 mm, while 0.25 and 0.2 mm take 1.3 and 1.7 x the unknowns (README,
+# "Refinement, and voxel against tet").
+DEFAULT_SIZE = {"voxel": 0.2, "tet": 0.35}
+
 
 @dataclass(frozen=True)
 class VolumeOptions:
     """How to mesh the cell.
 
     kind: "voxel" (hexahedra, phase at their centres) or "tet" (conforming tetrahedra).
-    size: element size H [mm]. yarn_vf: every yarn's intra-yarn fibre volume fraction [-], instead
-    of the model's fibre data. z_range: the cell through the thickness (zmin, zmax) [mm], e.g. a
-    mould's cavity; None: the yarns' own extent (tet: padded by half the gap). gap: tet only, the
-    least gap between yarns the mesh is made for [mm] (meshes.tetra: default 5 % of the thinnest
-    yarn's height). memory_limit: largest memory [GB] the mesh may take (default: what the system
-    has available).
+    size: element size H [mm] (None: DEFAULT_SIZE of the kind). yarn_vf: every yarn's intra-yarn
+    fibre volume fraction [-], instead of the model's fibre data. z_range: the cell through the
+    thickness (zmin, zmax) [mm], e.g. a mould's cavity; None: the yarns' own extent (tet: padded by
+    half the gap). gap: tet only, the least gap between yarns the mesh is made for [mm]
+    (meshes.tetra: default 5 % of the thinnest yarn's height). memory_limit: largest memory [GB] the
+    mesh may take (default: what the system has available).
     """
 
     kind: str = "voxel"
-    size: float = 0.2
+    size: float | None = None
     yarn_vf: float | None = None
     z_range: tuple[float, float] | None = None
     gap: float | None = None
     memory_limit: float | None = None
 
+    @property
+    def element_size(self) -> float:
+        """size, or the kind's DEFAULT_SIZE [mm]."""
+        return DEFAULT_SIZE[self.kind] if self.size is None else self.size
+
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise TextileError(f"volume mesh kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
-        limits.check_length("volume mesh size", self.size)
+        limits.check_length("volume mesh size", self.element_size)
         if self.gap is not None:
             limits.check_length("tet gap", self.gap)
         if self.yarn_vf is not None:
@@ -89,11 +102,12 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
             if options.kind == "voxel":
                 from textile_fenicsx.meshes.voxel import voxel_mesh
 
-                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.size, vf)
+                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.element_size, vf)
             else:
                 result = _tet(textile, options, vf)
         except (TextileError, MeshError) as e:
             error = e
+    wait_asleep(comm)  # the other ranks leave rank 0's mesher (gmsh's threads) the cores
     error = comm.bcast(error, root=0)
     if error is not None:
         raise error
@@ -105,7 +119,7 @@ def _tet(textile: Textile, options: VolumeOptions, vf: list[float]) -> VolumeMes
     from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh
     from textile_fenicsx.meshes.volume import Box
 
-    tet = tet_mesh(textile, TetOptions(size=options.size, gap=options.gap, z_range=options.z_range,
+    tet = tet_mesh(textile, TetOptions(size=options.element_size, gap=options.gap, z_range=options.z_range,
                                        memory_limit=options.memory_limit), MPI.COMM_SELF)
     assert tet is not None
     box = Box(tuple(float(v) for v in tet.lo), tuple(float(v) for v in tet.hi))
