@@ -738,6 +738,27 @@ def test_pytest_under_mpirun_still_reports_failures(tmp_path):
     assert "MPI_Abort" not in run.stderr + run.stdout
 
 
+@pytest.mark.mpi
+def test_a_rank_waiting_for_rank_0_sleeps():
+    """parallel.wait_asleep: every rank returns once all have called it, and a rank that waits
+    there uses almost no CPU (OpenMPI's barrier spins: a waiting rank took a core from rank 0's
+    gmsh threads, 49 CPU s while the satin's tet mesh was made)."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.parallel import wait_asleep
+
+    comm = MPI.COMM_WORLD
+    comm.barrier()
+    wall, cpu = time.perf_counter(), time.process_time()
+    if comm.rank == 0:
+        time.sleep(1.0)  # rank 0 busy elsewhere (sleeping: no CPU of its own either)
+    wait_asleep(comm)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    if comm.size > 1:
+        assert wall > 0.95  # no rank leaves before rank 0 arrives
+    assert cpu < 0.2, f"rank {comm.rank} used {cpu:.2f} CPU s in {wall:.2f} s of waiting"
+
+
 # --- 10. signals through the environment runner -----------------------------------------------------
 
 @pytest.mark.serial
