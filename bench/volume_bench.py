@@ -13,7 +13,7 @@ elements, the cell problems' unknowns and CG iterations, and writes output/volum
     python3 bench/volume_bench.py [--kinds voxel tet] [--ranks 1 2] [--sizes voxel=0.2 tet=0.35]
                                   [--degree 2]
 
-(the sizes by default each kind's default, volumes.DEFAULT_SIZE).
+(the sizes by default each kind's default, meshes/volume.py DEFAULT_SIZE).
 
 Several sizes per kind (`--sizes voxel=0.2,0.1 tet=0.35,0.25`) make a refinement study: the table then
 gives each engineering constant's change from the size before, and voxel against tet at the finest.
@@ -91,7 +91,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--kinds", nargs="+", default=["voxel", "tet"])
     parser.add_argument("--ranks", nargs="+", type=int, default=[1, 2])
-    parser.add_argument("--sizes", nargs="+", default=["voxel=0.2", "tet=0.35"], metavar="KIND=H[,H...]")
+    from textile_fenicsx.meshes.volume import DEFAULT_SIZE
+
+    parser.add_argument("--sizes", nargs="+", default=[f"{k}={h}" for k, h in DEFAULT_SIZE.items()],
+                        metavar="KIND=H[,H...]")
     parser.add_argument("--degree", type=int, default=2, choices=[1, 2])
     parser.add_argument("--out", type=Path, default=REPO / "output" / "volume_bench.json")
     args = parser.parse_args()

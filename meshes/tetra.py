@@ -39,7 +39,7 @@ from textile_fenicsx.errors import GeometryError, MeshError, TextileError, check
 from textile_fenicsx.meshes import tetra_checks as checks
 from textile_fenicsx.meshes import tetra_sides
 from textile_fenicsx.meshes import tetra_solids as solids
-from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+from textile_fenicsx.meshes.volume import DEFAULT_SIZE, Box, periodic_mismatch
 from textile_fenicsx.parallel import wait_asleep
 from textile_fenicsx.textile import Textile
 
@@ -92,7 +92,7 @@ class TetOptions:
     refuse a size estimated to give more tets. threads: gmsh's threads (at most 2 here).
     """
 
-    size: float = 0.35
+    size: float = DEFAULT_SIZE["tet"]
     gap: float | None = None
     grading: float = 3.0
     curvature: int = 24

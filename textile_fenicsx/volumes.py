@@ -18,7 +18,7 @@ from mpi4py import MPI
 
 from textile_fenicsx import limits
 from textile_fenicsx.errors import MeshError, TextileError
-from textile_fenicsx.meshes.volume import KINDS, VolumeMesh, cell_box
+from textile_fenicsx.meshes.volume import DEFAULT_SIZE, KINDS, VolumeMesh, cell_box
 from textile_fenicsx.parallel import wait_asleep
 from textile_fenicsx.textile import Textile
 
@@ -29,13 +29,6 @@ log = logging.getLogger(__name__)
 
 # The densest packing of parallel round fibres (hexagonal): no yarn can hold more.
 MAX_PACKING = np.pi / (2 * np.sqrt(3))
-
-# The element size [mm] of each kind where none is given. voxel: 0.2, homogenised in about a minute
-# on 2 ranks (coarse: the corrected satin's Ex 8 % below the tet's, README). tet: 0.35, the volume
-# sweep's size (docs/sweep.md); on the corrected satin every engineering constant moves by at most
-# 0.07 % from 0.35 to 0.25 mm, while 0.25 and 0.2 mm take 1.3 and 1.7 x the unknowns (README,
-# "Refinement, and voxel against tet").
-DEFAULT_SIZE = {"voxel": 0.2, "tet": 0.35}
 
 
 @dataclass(frozen=True)
