@@ -54,7 +54,9 @@ ACCEPT = 0.75
 # the corrected satin4 at size 0.25 (peak 1.4 GB and 300 756 tets in 127 mm^3: 4.7 kB and 37).
 BYTES_PER_TET = 5e3
 TETS_PER_VOLUME = 37.0
-# gmsh's optimisers run after its own (Mesh.Optimize) on the volume mesh
+# gmsh's optimisers run on the volume mesh, in turn. Its own optimiser ("") is not also run inside
+# generate (Mesh.Optimize 0): on the corrected satin at 0.35 mm that saved 3 s of 13 for the same
+# quality (minSICN 0.014, mean 0.630 against 0.632).
 OPTIMISE = ("Relocate3D", "")
 # How far apart [fraction of the box] the bounding boxes of two faces paired as periodic may be: OCC's
 # boxes of spline faces are loose (the faces are then checked by the mesh's periodicity).
@@ -66,8 +68,9 @@ LOST = 10.0
 # Relative accuracy of gmsh's integral of the size field along each curve, which places the
 # curves' nodes (its default 1e-9). On the corrected satin at 0.35 mm the curves took 27 s with
 # 1e-9, 19 s with 1e-6, 6 s with 1e-4, for the same mesh to gmsh's run-to-run variation (276 105,
-# 276 135, 276 198 tets, minSICN 0.0145, 0.0145, 0.0144, yarn volumes within 0.50 %).
-LC_PRECISION = 1e-4
+# 276 135, 276 198 tets, minSICN 0.0145, 0.0145, 0.0144, yarn volumes within 0.50 %), 3.5 s
+# with 1e-3 (276 582 tets, minSICN 0.014, within 0.50 %).
+LC_PRECISION = 1e-3
 # Times the sections are traced again with twice the points when the surface mesh crosses itself.
 RETRACE = 2
 # Places the box may move to, past the cell's origin, where OCC's cut of a skin by the box gives
@@ -433,7 +436,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
                         ("Mesh.MeshSizeFromCurvature", options.curvature), ("Mesh.MeshSizeMax", options.size),
                         ("Mesh.MeshSizeMin", smallest(options, gap, height)), ("Mesh.Algorithm", 6),
                         ("Mesh.Algorithm3D", 1),
-                        ("Mesh.Optimize", 1)):
+                        ("Mesh.Optimize", 0)):
         gmsh.option.setNumber(name, value)
     t = time.perf_counter()
     mesh_surfaces()

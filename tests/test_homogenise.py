@@ -23,7 +23,7 @@ from textile_fenicsx.homogenisation import (
     phase_fields,
     yarn_material,
 )
-from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+from textile_fenicsx.homogenisation.cellproblem import CG_GAMG, cell_measure
 from textile_fenicsx.homogenisation.effective import _nodes
 from textile_fenicsx.homogenisation.materials import PRESETS, stiffness
 from textile_fenicsx.homogenisation.periodic import bounding_box, check_one_master, periodic_constraint
@@ -222,6 +222,46 @@ def test_a_random_two_phase_cell_lies_between_the_bounds():
     assert record["voigt_order"] == ["11", "22", "33", "23", "13", "12"] and "engineering" in record["shear"]
     assert record["dofs"]["elasticity"] == 3 * 9 * 9 * 7 and record["units"]["C"] == "MPa"
     assert record["checks"]["min_eig_C"] > 0 and record["checks"]["min_eig_voigt_minus_C"] > -1e-9
+
+
+def _elastic_matrix(mesh, degree, dx) -> np.ndarray:
+    """The values of the elastic cell problem's matrix (a T300 fibre's stiffness, no constraint)."""
+    import basix.ufl
+    import ufl
+
+    from textile_fenicsx.forms.elasticity import elastic_cell_forms
+
+    V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree, shape=(3,)))
+    D = dolfinx.fem.Constant(mesh, stiffness(PRESETS["t300"]))
+    a, _ = elastic_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), D, dolfinx.fem.Constant(mesh, np.zeros(6)),
+                              dx)
+    return dolfinx.fem.assemble_matrix(dolfinx.fem.form(a)).data.copy()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("degree", [1, 2])
+def test_parallelepipeds_get_the_exact_gauss_rule_and_other_hexes_ufls(degree):
+    # on a sheared box (parallelepipeds) the integrand is a polynomial of degree 2 p in each reference
+    # coordinate: p + 1 Gauss points a direction are exact, so the matrix is UFL's (more points) to
+    # round-off; a bilinear map is not affine and keeps UFL's estimate
+    import ufl
+
+    mesh = dolfinx.mesh.create_box(MPI.COMM_WORLD, [[0.0, 0.0, 0.0], [2.0, 2.0, 1.0]], [3, 3, 2],
+                                   dolfinx.mesh.CellType.hexahedron)
+    x = mesh.geometry.x
+    x[:, 0] += 0.3 * x[:, 1] + 0.2 * x[:, 2]
+    x[:, 1] += 0.1 * x[:, 2]
+    dx = cell_measure(mesh, degree)
+    assert dx.metadata() == {"quadrature_degree": 2 * degree}
+    exact, estimated = _elastic_matrix(mesh, degree, dx), _elastic_matrix(mesh, degree, ufl.dx(domain=mesh))
+    scale = MPI.COMM_WORLD.allreduce(float(np.abs(estimated).max()), op=MPI.MAX)
+    worst = MPI.COMM_WORLD.allreduce(float(np.abs(exact - estimated).max()), op=MPI.MAX)
+    assert worst < 1e-12 * scale
+
+    x[:, 2] += 0.02 * x[:, 0] * x[:, 1]
+    assert cell_measure(mesh, degree).metadata() == {}
+    tets = dolfinx.mesh.create_unit_cube(MPI.COMM_WORLD, 2, 2, 2)
+    assert cell_measure(tets, degree).metadata() == {}
 
 
 @pytest.mark.mpi

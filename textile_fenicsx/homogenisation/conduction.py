@@ -13,7 +13,7 @@ import ufl
 
 import dolfinx
 from textile_fenicsx.forms.conduction import conduction_cell_forms
-from textile_fenicsx.homogenisation.cellproblem import CellProblem
+from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure
 from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ThermalCellProblem"]
@@ -30,7 +30,7 @@ class ThermalCellProblem(CellProblem):
         mesh = K.function_space.mesh
         V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree))
         G = dolfinx.fem.Constant(mesh, np.zeros(3, dtype=dolfinx.default_scalar_type))
-        a, L = conduction_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), K, G, ufl.dx(domain=mesh))
+        a, L = conduction_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), K, G, cell_measure(mesh, degree))
         super().__init__(V, a, L, G, box, options, "conduction")
 
     def fluctuation_energies(self) -> dict:

@@ -15,7 +15,7 @@ import ufl
 
 import dolfinx
 from textile_fenicsx.forms.elasticity import elastic_cell_forms
-from textile_fenicsx.homogenisation.cellproblem import CellProblem
+from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure
 from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ElasticCellProblem", "rigid_body_modes"]
@@ -43,7 +43,7 @@ class ElasticCellProblem(CellProblem):
         mesh = D.function_space.mesh
         V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree, shape=(3,)))
         E = dolfinx.fem.Constant(mesh, np.zeros(6, dtype=dolfinx.default_scalar_type))
-        a, L = elastic_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), D, E, ufl.dx(domain=mesh))
+        a, L = elastic_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), D, E, cell_measure(mesh, degree))
         super().__init__(V, a, L, E, box, options, "elasticity", near_null=rigid_body_modes(V))
 
     def fluctuation_energies(self) -> dict:
