@@ -293,6 +293,35 @@ def test_a_yarn_lost_by_the_cut_moves_the_box(loose_plain, comm, monkeypatch):
 
 
 @pytest.mark.serial
+def test_the_z_bounds_of_a_skin_are_those_of_its_sections_and_their_splines():
+    """A skin is ruled between its section splines (add_skin), so its extremes in z lie on its
+    edges (tetra_solids._z_bounds). Circles of radius r along a path that rises and falls by h
+    (with a station at each crest and trough): the bounds are the lowest centre - r and the
+    highest + r, to the spline's error through 48 points of a circle (r (1 - cos(pi / 48)) at
+    most: 2.1e-4 r); a ruled skin never swings past its sections between stations."""
+    import gmsh
+
+    from textile_fenicsx.meshes import tetra_solids
+
+    r, h = 0.2, 0.3
+    angle = 2 * np.pi * np.arange(48) / 48
+    x = np.linspace(0.0, 4.0, 9)
+    centre_z = h * np.cos(np.pi * x / 2)  # crests at x = 0, 4, trough at 2
+    sections = np.stack([np.column_stack((np.full(48, xi), r * np.cos(angle), zi + r * np.sin(angle)))
+                         for xi, zi in zip(x, centre_z)])
+    gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        gmsh.model.add("skin")
+        skin = tetra_solids.add_skin(sections, "wavy")
+        lowest, highest = tetra_solids._z_bounds([skin])
+    finally:
+        gmsh.finalize()
+    assert lowest == pytest.approx(-h - r, abs=2.1e-4 * r)
+    assert highest == pytest.approx(h + r, abs=2.1e-4 * r)
+
+
+@pytest.mark.serial
 def test_an_uncarved_matrix_is_seen():
     """The quick fragment's check (tetra_solids._carved): a yarn's volume lying in the box without
     being cut out of it (its faces shared with no other volume: what OCC's full glue left around
