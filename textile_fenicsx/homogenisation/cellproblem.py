@@ -48,8 +48,9 @@ log = logging.getLogger(__name__)
 # level's coarse matrices (6 rigid-body modes a node, from P2) were nearly dense and their Galerkin
 # products took most of the setup; on the 1.1 M-dof tet satin (2 ranks) the setup took 19 s
 # instead of 38, with the same 33 iterations a load case. Point-block Jacobi instead of Jacobi
-# (DOLFINx's elasticity demo) takes 29-31 iterations there instead of 35, 7.5 s a case instead of
-# 8.5 (2026-11-27); on the Q2 voxel satin 20 instead of 21. Tried and not kept: SOR (22
+# (DOLFINx's elasticity demo) took 29-31 iterations there instead of 35 when profiled, 7.5 s a
+# case instead of 8.5, and 27-37 against 29-38 in whole runs (2026-11-27; GAMG's aggregates vary
+# from run to run); on the Q2 voxel satin 20 instead of 21. Tried and not kept: SOR (22
 # iterations, 19 s a case), Chebyshev of degree 1 (56) and 3 (29 iterations, 10.5 s).
 CG_GAMG = {
     "ksp_type": "cg",
