@@ -71,10 +71,10 @@ def one(args) -> None:
     from mpi4py import MPI
 
     from textile_fenicsx.homogenisation import HomogeniseOptions, homogenise
-    from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+    from textile_fenicsx.homogenisation.cellproblem import default_solver
 
     comm = MPI.COMM_WORLD
-    solver = dict(CG_GAMG, ksp_rtol=args.rtol, **json.loads(args.options))
+    solver = dict(default_solver(2), ksp_rtol=args.rtol, **json.loads(args.options))
     options = HomogeniseOptions(elasticity_solver=solver, conduction_solver=dict(solver))
     homogenise(*synthetic_cell(comm, SIZES["tiny"], args.cell), "t300", "epoxy", options)  # fills the form cache
     t0 = time.perf_counter()

@@ -23,7 +23,7 @@ from textile_fenicsx.homogenisation import (
     phase_fields,
     yarn_material,
 )
-from textile_fenicsx.homogenisation.cellproblem import CG_GAMG, cell_measure
+from textile_fenicsx.homogenisation.cellproblem import CG_GAMG, CG_PMG, cell_measure, default_solver
 from textile_fenicsx.homogenisation.effective import _nodes
 from textile_fenicsx.homogenisation.materials import PRESETS, stiffness
 from textile_fenicsx.homogenisation.periodic import bounding_box, check_one_master, periodic_constraint
@@ -308,3 +308,48 @@ def test_a_solve_that_does_not_converge_raises():
     solver = dict(CG_GAMG, ksp_max_it=2)
     with pytest.raises(SolverError, match="elasticity cell problem, load case 1: CG did not converge.*DIVERGED_MAX_IT"):
         homogenise(*two_phase(MPI.COMM_WORLD), "t300", EPOXY, HomogeniseOptions(elasticity_solver=solver))
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("kind", ["hex", "tet"])
+def test_the_degree_1_level_is_the_galerkin_product_of_the_degree_2_problem(kind):
+    # a periodic P1 (Q1) field is a periodic P2 (Q2) field on the same mesh and both degrees pin the
+    # same vertex, so P^T A_2 P equals the P1 matrix on the free dofs to round-off: the coarse level
+    # of the p-multigrid is exact (pmultigrid.py)
+    from petsc4py import PETSc
+
+    from textile_fenicsx.homogenisation.elasticity import ElasticCellProblem
+    from textile_fenicsx.homogenisation.fields import yarn_fields
+    from textile_fenicsx.homogenisation.pmultigrid import prolongation
+
+    msh, tags, d, v = two_phase(MPI.COMM_WORLD, kind)
+    fields = yarn_fields(msh, tags, d, v, PRESETS["t300"], EPOXY)
+    fine = ElasticCellProblem(fields.D, bounding_box(msh), default_solver(2), 2)
+    P = G = free = None
+    try:
+        coarse = fine.coarse
+        assert coarse.V.element.basix_element.degree == 1
+        P = prolongation(coarse, fine)
+        G = fine.A.ptap(P)
+        G.axpy(-1.0, coarse.A, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        free = coarse.A.createVecLeft()
+        free.getArray()[:] = np.where(coarse.constrained, 0.0, 1.0)
+        G.diagonalScale(free, free)
+        scale = coarse.A.norm(PETSc.NormType.FROBENIUS)
+        assert G.norm(PETSc.NormType.FROBENIUS) < 1e-12 * scale
+    finally:
+        for obj in (P, G, free):
+            if obj is not None:
+                obj.destroy()
+        fine.destroy()
+
+
+@pytest.mark.mpi
+def test_p_multigrid_and_gamg_give_the_same_properties():
+    cell = two_phase(MPI.COMM_WORLD, "tet")
+    pmg = homogenise(*cell, "t300", EPOXY)
+    gamg = homogenise(*cell, "t300", EPOXY, HomogeniseOptions(elasticity_solver=dict(CG_GAMG),
+                                                            conduction_solver=dict(CG_GAMG)))
+    assert relative(pmg.C, gamg.C) < 1e-8 and relative(pmg.K, gamg.K) < 1e-8
+    with pytest.raises(ValueError, match="p-multigrid .pc_type mg. needs degree 2"):
+        homogenise(*cell, "t300", EPOXY, HomogeniseOptions(degree=1, elasticity_solver=dict(CG_PMG)))

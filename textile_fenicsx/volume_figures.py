@@ -83,7 +83,7 @@ def strain_energy_cut(fields: Any, fibre: str, matrix: str, case: int, strain: f
     import dolfinx
     from textile_fenicsx.forms.elasticity import elastic_energy_density, voigt_strain
     from textile_fenicsx.forms.elasticity import strain as eps
-    from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+    from textile_fenicsx.homogenisation.cellproblem import default_solver
     from textile_fenicsx.homogenisation.elasticity import ElasticCellProblem
     from textile_fenicsx.homogenisation.fields import yarn_fields
     from textile_fenicsx.homogenisation.materials import material
@@ -91,7 +91,7 @@ def strain_energy_cut(fields: Any, fibre: str, matrix: str, case: int, strain: f
 
     msh = fields.mesh
     cell = yarn_fields(msh, fields.phase, fields.direction, fields.yarn_vf, material(fibre), material(matrix))
-    problem = ElasticCellProblem(cell.D, bounding_box(msh), dict(CG_GAMG), degree)
+    problem = ElasticCellProblem(cell.D, bounding_box(msh), default_solver(degree), degree)
     try:
         load = np.zeros(6)
         load[case] = strain

@@ -13,7 +13,7 @@ import ufl
 
 import dolfinx
 from textile_fenicsx.forms.conduction import conduction_cell_forms
-from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure
+from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure, two_level
 from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ThermalCellProblem"]
@@ -26,12 +26,13 @@ class ThermalCellProblem(CellProblem):
     (int K dx + energies) / |Y|.
     """
 
-    def __init__(self, K: dolfinx.fem.Function, box: Box, options: dict, degree: int = 2):
+    def __init__(self, K: dolfinx.fem.Function, box: Box, options: dict | None, degree: int = 2):
         mesh = K.function_space.mesh
         V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree))
         G = dolfinx.fem.Constant(mesh, np.zeros(3, dtype=dolfinx.default_scalar_type))
         a, L = conduction_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), K, G, cell_measure(mesh, degree))
-        super().__init__(V, a, L, G, box, options, "conduction")
+        coarse = ThermalCellProblem(K, box, None, 1) if degree > 1 and two_level(options) else None
+        super().__init__(V, a, L, G, box, options, "conduction", coarse=coarse)
 
     def fluctuation_energies(self) -> dict:
         """Solve the three unit mean gradients; see CellProblem.solve."""

@@ -19,7 +19,7 @@ from mpi4py import MPI
 
 from textile_fenicsx import memory
 from textile_fenicsx.errors import GeometryError
-from textile_fenicsx.homogenisation.cellproblem import CG_GAMG
+from textile_fenicsx.homogenisation.cellproblem import default_solver
 from textile_fenicsx.homogenisation.conduction import ThermalCellProblem
 from textile_fenicsx.homogenisation.constants import VOIGT_ORDER, bounds, engineering_constants
 from textile_fenicsx.homogenisation.elasticity import ElasticCellProblem
@@ -34,13 +34,14 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class HomogeniseOptions:
     """degree: of the Lagrange elements (2: P2 on tetrahedra, Q2 on hexahedra); elasticity_solver,
-    conduction_solver: PETSc options (plain dicts; CG + GAMG by default, cellproblem.CG_GAMG);
+    conduction_solver: PETSc options (plain dicts; by default cellproblem.default_solver(degree):
+    p-multigrid over GAMG for degree 2 and up, CG_PMG, and CG + GAMG for degree 1, CG_GAMG);
     conduction: also the thermal problem (if the materials have conductivities); box: the periodic
     cell (default: the mesh's bounding box over all ranks); memory_limit: GB (default: the memory
     available now)."""
     degree: int = 2
-    elasticity_solver: dict = field(default_factory=lambda: dict(CG_GAMG))
-    conduction_solver: dict = field(default_factory=lambda: dict(CG_GAMG))
+    elasticity_solver: dict | None = None
+    conduction_solver: dict | None = None
     conduction: bool = True
     box: Box | None = None
     memory_limit: float | None = None
@@ -194,8 +195,10 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
     seconds: dict = {}
     dofs: dict = {}
     iterations: dict = {}
+    solvers = (options.elasticity_solver or default_solver(options.degree),
+               options.conduction_solver or default_solver(options.degree))
     C, dofs["elasticity"], iterations["elasticity"] = _solve(
-        ElasticCellProblem, fields.D, box, options.elasticity_solver, options.degree, volume, fields.stiffness,
+        ElasticCellProblem, fields.D, box, solvers[0], options.degree, volume, fields.stiffness,
         fields.volumes, comm, seconds, "elasticity")
     asymmetry = float(np.abs(C - C.T).max() / np.abs(C).max())
     C = 0.5 * (C + C.T)
@@ -203,7 +206,7 @@ def homogenise_fields(fields: CellFields, options: HomogeniseOptions | None = No
     K = K_voigt = K_reuss = None
     if options.conduction and fields.K is not None and fields.conductivity is not None:
         K, dofs["conduction"], iterations["conduction"] = _solve(
-            ThermalCellProblem, fields.K, box, options.conduction_solver, options.degree, volume,
+            ThermalCellProblem, fields.K, box, solvers[1], options.degree, volume,
             fields.conductivity, fields.volumes, comm, seconds, "conduction")
         K = 0.5 * (K + K.T)
         K_voigt, K_reuss = bounds(fields.conductivity, fields.volumes, comm)

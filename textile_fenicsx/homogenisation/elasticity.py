@@ -15,7 +15,7 @@ import ufl
 
 import dolfinx
 from textile_fenicsx.forms.elasticity import elastic_cell_forms
-from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure
+from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure, two_level
 from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ElasticCellProblem", "rigid_body_modes"]
@@ -39,12 +39,13 @@ class ElasticCellProblem(CellProblem):
     (int D dx + energies) / |Y| (effective.py adds the first term from the cells).
     """
 
-    def __init__(self, D: dolfinx.fem.Function, box: Box, options: dict, degree: int = 2):
+    def __init__(self, D: dolfinx.fem.Function, box: Box, options: dict | None, degree: int = 2):
         mesh = D.function_space.mesh
         V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree, shape=(3,)))
         E = dolfinx.fem.Constant(mesh, np.zeros(6, dtype=dolfinx.default_scalar_type))
         a, L = elastic_cell_forms(ufl.TrialFunction(V), ufl.TestFunction(V), D, E, cell_measure(mesh, degree))
-        super().__init__(V, a, L, E, box, options, "elasticity", near_null=rigid_body_modes(V))
+        coarse = ElasticCellProblem(D, box, None, 1) if degree > 1 and two_level(options) else None
+        super().__init__(V, a, L, E, box, options, "elasticity", near_null=rigid_body_modes(V), coarse=coarse)
 
     def fluctuation_energies(self) -> dict:
         """Solve the six unit mean strains; see CellProblem.solve."""

@@ -130,14 +130,19 @@ def check_one_master(mpc: dolfinx_mpc.MultiPointConstraint, expected: int | None
 
 
 def pin(V: dolfinx.fem.FunctionSpace, box: Box) -> dolfinx.fem.DirichletBC:
-    """Zero Dirichlet condition on the dof block nearest the box's centre (never on a + face):
-    fixes the translation the periodic fluctuation is defined up to. Every rank that holds the
-    block (owned or ghost) gets it, so that the condition is applied consistently (collective)."""
+    """Zero Dirichlet condition on the dof block at the mesh vertex nearest the box's centre (never
+    on a + face): fixes the translation the periodic fluctuation is defined up to. A vertex, so that
+    every degree on the mesh pins the same point (the P1 level of pmultigrid.py is then a subspace
+    of the P2 problem). Every rank that holds the block (owned or ghost) gets it, so that the
+    condition is applied consistently (collective)."""
     comm = V.mesh.comm
     imap = V.dofmap.index_map
     points = _dof_points(V)
     distance = np.linalg.norm(points - 0.5 * (np.asarray(box.lo) + np.asarray(box.hi)), axis=1)
     distance[np.any(_on_plus(points.T, box), axis=0)] = np.inf
+    if len(points):
+        at_vertex = cKDTree(V.mesh.geometry.x).query(points, distance_upper_bound=box.tol)[0] < box.tol
+        distance[~at_vertex] = np.inf
     mine = (float(distance.min()), comm.rank) if len(distance) else (np.inf, comm.rank)
     owner = comm.allreduce(mine, op=MPI.MIN)[1]
     chosen = comm.bcast(imap.local_range[0] + int(np.argmin(distance)) if comm.rank == owner else None, root=owner)
