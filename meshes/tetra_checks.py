@@ -5,6 +5,8 @@
 - `surface_crossings`: where triangles of a surface mesh cross each other, which gmsh's 3D mesher
   refuses as "a segment and a facet intersect" (two yarns' skins that cross in the gap between
   them: a spline through too few points of a cornered section overshoots);
+- `enclosed_volume`: what a yarn's surface mesh encloses, which its tets will hold (before the
+  3D mesh is made);
 - `signed_volumes`, `phase_mismatch`, `fibre_angles`: inverted tets, elements whose centroid is
   not in their own yarn, fibre directions against the path tangent.
 """
@@ -91,6 +93,42 @@ def surface_crossings(points: np.ndarray, triangles: np.ndarray) -> tuple[np.nda
             hits.append(x[inside])
             which.append(np.stack([e, f], axis=1)[inside])
     return np.concatenate(hits), np.concatenate(which)
+
+
+def enclosed_volume(points: np.ndarray, faces: list[np.ndarray]) -> float:
+    """The volume [mm^3] that one closed, connected surface encloses: faces, each its triangles
+    (T, 3) (node rows of points (N, 3)) turning the same way within the face, but not necessarily
+    as the others do (gmsh's copies on a periodic face turn against their face). The faces are
+    turned to agree where they meet (an edge that two faces share runs opposite ways in them),
+    then the divergence theorem sums the triangles' cones from the points' centre."""
+    owner: dict[tuple[int, int], tuple[int, bool]] = {}
+    links: list[list[tuple[int, bool]]] = [[] for _ in faces]
+    for k, tri in enumerate(faces):
+        directed = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+        _, inverse, count = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
+        for a, b in directed[count[inverse.ravel()] == 1]:  # the face's edges on its curves
+            e, forward = (min(a, b), max(a, b)), bool(a < b)
+            if e in owner:  # the same direction in both faces: one of them turns the wrong way
+                other, theirs = owner[e]
+                links[k].append((other, theirs == forward))
+                links[other].append((k, theirs == forward))
+            else:
+                owner[e] = (k, forward)
+    sign = np.zeros(len(faces))
+    for start in range(len(faces)):
+        if sign[start]:
+            continue
+        sign[start], todo = 1.0, [start]
+        while todo:
+            k = todo.pop()
+            for other, flip in links[k]:
+                if not sign[other]:
+                    sign[other] = -sign[k] if flip else sign[k]
+                    todo.append(other)
+    c = points.mean(axis=0)
+    six = sum(s * float(np.einsum("ij,ij->", points[t[:, 0]] - c, np.cross(points[t[:, 1]] - c, points[t[:, 2]] - c)))
+              for s, t in zip(sign, faces))
+    return abs(six) / 6
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

@@ -206,13 +206,19 @@ class Yarn:
         """Centreline length over the master nodes [mm]."""
         return float(self.length_table()[1][-1])
 
-    def stations(self, spacing: float, minimum_per_segment: int = 4) -> np.ndarray:
+    def stations(self, spacing: float, minimum_per_segment: int = 4, turn: float = np.inf) -> np.ndarray:
         """Parameters s of stations equispaced in arc length within each segment between master
-        nodes (at most `spacing` mm apart), the nodes and ends included. Per segment, so that a
+        nodes (at most `spacing` mm apart, and a segment whose tangent turns by more than `turn`
+        radians cut into that many more), the nodes and ends included. Per segment, so that a
         yarn continued over several periods (a coupon's) has the same stations in every period."""
         s, cum = self.length_table()
-        at_nodes = cum[::(len(s) - 1) // self.n_segments]
+        per = (len(s) - 1) // self.n_segments
+        at_nodes = cum[::per]
         counts = np.maximum(np.ceil(np.diff(at_nodes) / spacing).astype(int), minimum_per_segment)
+        if np.isfinite(turn):
+            _, tan = self.centreline(s)
+            turning = np.arccos(np.clip(np.sum(tan[1:] * tan[:-1], axis=1), -1.0, 1.0)).reshape(-1, per).sum(axis=1)
+            counts = np.maximum(counts, np.ceil(turning / turn).astype(int))
         targets = np.concatenate([np.linspace(a, b, n, endpoint=False) for a, b, n in
                                   zip(at_nodes[:-1], at_nodes[1:], counts)] + [at_nodes[-1:]])
         return np.interp(targets, cum, s)
