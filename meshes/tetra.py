@@ -92,9 +92,11 @@ class TetOptions:
     size: largest element size. gap: the least gap between yarns (and between a yarn and the box's
     top or bottom face, with gap / 2 there) the mesh is made for; default 5 % of the thinnest yarn's
     height. grading: element size per unit of local gap (the sum of the distances to the two
-    nearest yarns). curvature: elements per 2 pi of the yarn surfaces' curvature. spacing: station
-    spacing along the yarns (at least one per master node); points: points per section, spaced
-    evenly along its perimeter (the spline through 24 of them undershoots the tips of the 3D weaves'
+    nearest yarns). curvature: elements per 2 pi of the yarn surfaces' curvature (doubled, up to
+    twice, where a yarn's surface mesh encloses more than SHORT less than its surface). spacing:
+    station spacing along the yarns (at least one per master node, and 10 degrees of the path's
+    turning at most: tetra_solids.TURN); points: points per section, spaced evenly along its
+    perimeter (the spline through 24 of them undershoots the tips of the 3D weaves'
     thin flat sections: each yarn's solid 0.75 % short, every yarn -0.94..-1.05 % after meshing on
     l2l_w2f3_b3_0011; with 48, -0.35..-0.71 %; docs/tet_mesh.md). z_range:
     the box's (zmin, zmax), default the yarns' extent padded by gap / 2. shrink: allow the last
