@@ -3,20 +3,25 @@
 gmsh OCC fragments the cell by all footprints into basic regions, each covered by a fixed set of
 yarns (one physical group per set), with periodic opposite sides (periodic_sides.py) and element
 size = seed; nearly coincident yarn edges are merged by OCC's boolean tolerance instead of leaving
-slivers, and narrow regions get smaller elements. The result is plain arrays: node coordinates,
-triangles, each triangle's covering set, and the mesh's statistics.
+slivers, and narrow regions get smaller elements; a flat triangle left at the tip of a wedge
+between two edges that part at a tiny angle is flipped with its neighbour (caps.py). The result is
+plain arrays: node coordinates, triangles, each triangle's covering set, and the mesh's statistics.
 """
 
+import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
 
 from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.meshes.caps import CAP_ANGLE, flip_caps, triangle_angles
 from textile_fenicsx.meshes.periodic_sides import box_with_marks, periodic_sides, side_marks, snap_to_sides
 from textile_fenicsx.textile import Cell
 
 __all__ = ["GROWTH", "fresh_start", "gmsh_session", "region_mesh", "session_options"]
+
+log = logging.getLogger(__name__)
 
 # How fast element size may grow away from narrow regions (size change per unit distance).
 GROWTH = 1.0
@@ -86,17 +91,17 @@ def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
     gmsh.option.setNumber("Mesh.Algorithm", 6)  # Frontal-Delaunay: well-shaped triangles
     gmsh.option.setNumber("Mesh.Optimize", 1)
     gmsh.model.mesh.generate(2)
-    _, node_coords, _ = gmsh.model.mesh.getNodes()
-    elem_types, elem_tags, elem_nodes = gmsh.model.mesh.getElements(2)
-    tri = np.concatenate([n for t, n in zip(elem_types, elem_nodes) if t == 2]).reshape(-1, 3)
-    xyz = node_coords.reshape(-1, 3)
-    node_index = {int(tag): k for k, tag in enumerate(gmsh.model.mesh.getNodes()[0])}
-    p = xyz[[node_index[int(t)] for t in tri.ravel()]].reshape(-1, 3, 3)[:, :, :2]
-    angles = _triangle_angles(p)
-    return _mesh_arrays(), coverage, {"nodes": int(len(np.unique(tri))), "triangles": int(len(tri)),
-                                      "min_angle_deg": float(angles.min()),
-                                      "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
-                                      "regions": int(len(covering)), "sliver_tolerance_mm": sliver}
+    x, cells, tags = _mesh_arrays()
+    cells, tags, flipped = flip_caps(x, cells, tags)
+    if flipped:
+        log.info("mesh: %d flat triangles (an angle under %g deg, corners on one line) flipped with their "
+                 "neighbours (meshes/caps.py)", flipped, CAP_ANGLE)
+    angles = triangle_angles(x[cells])
+    return (x, cells, tags), coverage, {"nodes": int(len(x)), "triangles": int(len(cells)),
+                                        "min_angle_deg": float(angles.min()),
+                                        "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
+                                        "regions": int(len(covering)), "sliver_tolerance_mm": sliver,
+                                        "caps_flipped": flipped}
 
 
 def _covering_regions(cell: Cell, outlines: list, sliver: float) -> tuple[dict, dict]:
@@ -205,16 +210,3 @@ def _mesh_arrays() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     position[tags.astype(np.int64)] = np.arange(len(tags))
     x = xyz.reshape(-1, 3)[position[used], :2]
     return x, compact.reshape(-1, 3), np.concatenate(values)
-
-
-def _triangle_angles(p: np.ndarray) -> np.ndarray:
-    """Interior angles in degrees of triangles p (T, 3, 2)."""
-    out = np.empty(p.shape[:2])
-    for k in range(3):
-        a, b, c = p[:, k], p[:, (k + 1) % 3], p[:, (k + 2) % 3]
-        u, v = b - a, c - a
-        cos = np.einsum("ij,ij->i", u, v) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
-        out[:, k] = np.degrees(np.arccos(np.clip(cos, -1, 1)))
-    return out
-
-
