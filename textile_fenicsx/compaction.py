@@ -31,6 +31,7 @@ from textile_fenicsx.solver import (
     solve_problem,
 )
 from textile_fenicsx.solver.flattening import thinnest_stack
+from textile_fenicsx.solver.newton import DUAL_RTOL
 from textile_fenicsx.solver.parameters import HEXAGONAL
 from textile_fenicsx.textile import Textile
 
@@ -69,20 +70,25 @@ class CompactionTarget:
 class CompactionCurve:
     """The platens' pressure against the fabric's thickness: one point per step, the relaxed
     fabric first (pressure 0). thickness [mm], vf [-], pressure [N/mm^2 = MPa], the densest
-    yarn's fibre fraction [-], Newton steps [-]; reason: why it ended early (None: it reached
-    the target)."""
+    yarn's fibre fraction [-], Newton steps [-], imbalance: how far the forces are from
+    equilibrium when the step settled (dual residual over the largest internal force [-]; above
+    solver.newton.DUAL_RTOL its pressure is uncertain); reason: why it ended early (None: it
+    reached the target)."""
 
     thickness: list = field(default_factory=list)
     vf: list = field(default_factory=list)
     pressure: list = field(default_factory=list)
     densest: list = field(default_factory=list)
     iterations: list = field(default_factory=list)
+    imbalance: list = field(default_factory=list)
     target: float = 0.0
     fibre_volume: float = 0.0
     reason: str | None = None
 
-    def add(self, thickness: float, pressure: float, densest: float, iterations: int, area: float) -> None:
+    def add(self, thickness: float, pressure: float, densest: float, iterations: int, area: float,
+            imbalance: float = 0.0) -> None:
         self.thickness.append(thickness)
+        self.imbalance.append(imbalance)
         self.vf.append(self.fibre_volume / (area * thickness))
         self.pressure.append(pressure)
         self.densest.append(densest)
@@ -174,9 +180,15 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
                     step = again
             solution, mould, start = step, step_mould, step
             assert step.pressure is not None and step.dt is not None  # a closed mould, yarns that flatten
-            curve.add(h, step.pressure, _densest(ms, law, step.dt), step.iterations, area)
+            imbalance = float(step.history[-1].get("imbalance", 0.0))
+            curve.add(h, step.pressure, _densest(ms, law, step.dt), step.iterations, area, imbalance)
             log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps",
                      k, h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
+            if imbalance > DUAL_RTOL:
+                packed = curve.densest[-1] >= target.phi_max * (1 - 1e-3)
+                log.warning("compaction step %d: the pressure %.4g MPa is uncertain: the forces settled out of "
+                            "balance by %.1e of the largest%s", k, step.pressure, imbalance,
+                            " (yarns packed to the maximum under another yarn leave them so)" if packed else "")
     finally:
         if problem is not None:
             problem.destroy()
