@@ -82,7 +82,8 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
         if (out / "compaction.json").is_file():
             curve = json.loads((out / "compaction.json").read_text())
             record.update(pressure=curve["pressure"][-1], relaxed=curve["thickness"][0], pressed=curve["thickness"][-1],
-                          densest=max(curve["densest"]), compaction_reason=curve["reason"])
+                          densest=max(curve["densest"]), compaction_reason=curve["reason"],
+                          compaction_newton_steps=sum(curve["iterations"]), imbalance=max(curve["imbalance"]))
         if proc.returncode != 0:
             record["error"] = proc.stderr.strip().splitlines()[-1:] if proc.stderr.strip() else []
         if keep is not None and out.is_dir():
@@ -114,16 +115,19 @@ def table(records: list[dict]) -> str:
 
 
 def compaction_table(records: list[dict]) -> str:
-    """The compaction's numbers per case: relaxed and pressed thickness, Vf, pressure, densest yarn."""
-    lines = ["| case | exit | relaxed mm | pressed mm | Vf after (rays) | pressure MPa | densest phi | stopped |",
-             "|---|---|---|---|---|---|---|---|"]
+    """The compaction's numbers per case: relaxed and pressed thickness, Vf, pressure, densest yarn,
+    the compaction's Newton steps (its steps and the last one's re-solve) and the largest imbalance
+    of its forces when a step settled (solver/newton.py, DUAL_RTOL)."""
+    lines = ["| case | exit | relaxed mm | pressed mm | Vf after (rays) | pressure MPa | densest phi | Newton | "
+             "imbalance | stopped |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in records:
         if "pressure" in r:
             vf = r["vf"]["after"] if r.get("vf") and r["vf"]["after"] is not None else float("nan")
             lines.append(f"| {r['case']} | {r['exit']} | {r['relaxed']:.3f} | {r['pressed']:.3f} | {vf:.3f} | "
-                         f"{r['pressure']:.3g} | {r['densest']:.3f} | {(r['compaction_reason'] or '')[:80]} |")
+                         f"{r['pressure']:.3g} | {r['densest']:.3f} | {r['compaction_newton_steps']} | "
+                         f"{r['imbalance']:.0e} | {(r['compaction_reason'] or '')[:80]} |")
         else:
-            lines.append(f"| {r['case']} | {r['exit']} | | | | | | {' '.join(r.get('error', []))[:80]} |")
+            lines.append(f"| {r['case']} | {r['exit']} | | | | | | | | {' '.join(r.get('error', []))[:80]} |")
     return "\n".join(lines)
 
 
