@@ -56,9 +56,9 @@ MAX_WEIGHT_PRESSED = 1e12
 # where the yarns flatten, the platens' pressure is read from the forces: a solve that settles
 # measures how far they are from equilibrium, its dual residual (K x - f - C^T lam) over the
 # largest internal force, and above this the compaction warns that its pressure is uncertain.
-# Not a condition to stop: where yarns are packed to the maximum under a pair (the polygon plain
-# weave, TexGen's refined jammed plain weave), slacks of 1e-16 mm leave it at 0.8-2 however long
-# the iteration goes on (100 steps)
+# Not a condition to stop: where yarns are packed to the maximum under a pair (the polygon
+# weaves), or a platen node's slack fell to round-off before its force grew (TexGen's refined
+# jammed plain weave), it stays at 0.8-2 however long the iteration goes on (100 steps)
 DUAL_RTOL = 1e-6
 # a warm start (from a related problem's solution) keeps its slacks at least this far from 0 [mm]
 WARM_GAP = 1e-5
