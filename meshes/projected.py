@@ -22,6 +22,7 @@ from textile_fenicsx import limits, memory
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, to_dolfinx
 from textile_fenicsx.meshes.footprints import footprint_area, footprint_outlines, snap_to_neighbours
+from textile_fenicsx.meshes.periodic_sides import snap_to_sides
 from textile_fenicsx.meshes.regions import fresh_start, gmsh_session, region_mesh
 from textile_fenicsx.meshes.tiling import tile_arrays
 from textile_fenicsx.textile import Cell, Textile
@@ -40,6 +41,12 @@ log = logging.getLogger(__name__)
 # a ramp, beside a middle weft 2.58 mm wide: 0.03 mm apart at most); at the default seed 0.5 mm the
 # first try does (0.05 mm), at 0.25 mm the second.
 SNAP = (2.0, 4.0)
+# and where that fails too, once more with the footprints' points within SIDE_SNAP x the sliver
+# tolerance of a cell side put onto it (periodic_sides.snap_to_sides puts those within 1 x):
+# gmsh's boolean merges a point about its tolerance from a side onto it or not, at round-off's
+# whim, and the two sides' curves then do not pair. TexGen's orthogonal weave at seed 0.25 mm has
+# its binders' edges 0.0125 mm inside its y sides, and the tolerance is seed / 20 = 0.0125 mm
+SIDE_SNAP = 2.0
 
 
 
@@ -235,8 +242,9 @@ def _regions(source: Textile | None, cell: Cell, options: MeshOptions,
              name: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict, dict]:
     """region_mesh of the footprints; where gmsh cannot mesh them, again with the side chains that
     stay within SNAP x the sliver tolerance of an earlier yarn's put onto it beforehand
-    (footprints.snap_to_neighbours), each factor in turn. A model that meshes as it is is meshed as
-    it always was; the first failure is raised if every try fails."""
+    (footprints.snap_to_neighbours), each factor in turn, and then with the points within
+    SIDE_SNAP x of a cell side put onto it. A model that meshes as it is is meshed as it always
+    was; the first failure is raised if every try fails."""
     sliver = options.seed / 20 if options.sliver is None else options.sliver
     outlines = [(i, footprint_outlines(source, i, options.seed / 4, pad=3 * sliver))
                 for i in range(len(source.yarns))] if source is not None else []
@@ -256,4 +264,13 @@ def _regions(source: Textile | None, cell: Cell, options: MeshOptions,
                                f"projected-{name}")
         except Exception:
             pass
+    log.warning("mesh: gmsh could not mesh the projected regions (%s); meshing them again with yarn edges that "
+                "stay within %g mm of a cell side put onto it", first, SIDE_SNAP * sliver)
+    fresh_start()
+    try:
+        on_sides = [(i, [(snap_to_sides(r, where, SIDE_SNAP * sliver), snap_to_sides(l_, where, SIDE_SNAP * sliver))
+                         for r, l_ in sides]) for i, sides in outlines]
+        return region_mesh(where, on_sides, options.seed, sliver, f"projected-{name}")
+    except Exception:
+        pass
     raise first

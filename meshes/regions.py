@@ -92,6 +92,7 @@ def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
     gmsh.option.setNumber("Mesh.Optimize", 1)
     gmsh.model.mesh.generate(2)
     x, cells, tags = _mesh_arrays()
+    _no_triangle_twice(x, cells)
     cells, tags, flipped = flip_caps(x, cells, tags)
     if flipped:
         log.info("mesh: %d flat triangles (an angle under %g deg, corners on one line) flipped with their "
@@ -102,6 +103,20 @@ def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
                                         "fraction_below_20_deg": float(np.mean(angles.min(axis=1) < 20.0)),
                                         "regions": int(len(covering)), "sliver_tolerance_mm": sliver,
                                         "caps_flipped": flipped}
+
+
+def _no_triangle_twice(x: np.ndarray, cells: np.ndarray) -> None:
+    """Refuse (GeometryError, naming the place) a mesh with a triangle twice over the same three
+    nodes: gmsh meshed two surfaces that overlap (TexGen's refined orthogonal weaves at seed 0.25,
+    their wefts' edges parting at a tiny angle: 32-192 such triangles, and DOLFINx then stopped on
+    "Duplicate mesh entity" or crashed in create_mesh)."""
+    _, first, count = np.unique(np.sort(cells, axis=1), axis=0, return_index=True, return_counts=True)
+    twice = first[count > 1]
+    if len(twice):
+        at = x[cells[twice[0]]].mean(axis=0)
+        raise GeometryError(f"gmsh made {len(twice)} triangles twice over the same nodes (regions that overlap), "
+                            f"the first at ({at[0]:.3f}, {at[1]:.3f}) mm, where yarn edges part at a tiny angle; "
+                            "try another --seed")
 
 
 def _covering_regions(cell: Cell, outlines: list, sliver: float) -> tuple[dict, dict]:
