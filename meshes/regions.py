@@ -107,16 +107,15 @@ def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
 
 def _no_triangle_twice(x: np.ndarray, cells: np.ndarray) -> None:
     """Refuse (GeometryError, naming the place) a mesh with a triangle twice over the same three
-    nodes: gmsh meshed two surfaces that overlap (TexGen's refined orthogonal weaves at seed 0.25,
-    their wefts' edges parting at a tiny angle: 32-192 such triangles, and DOLFINx then stopped on
-    "Duplicate mesh entity" or crashed in create_mesh)."""
+    nodes: gmsh meshed two surfaces that overlap (TexGen's refined orthogonal weaves at seed 0.25:
+    32-192 such triangles, and DOLFINx then stopped on "Duplicate mesh entity" or crashed in
+    create_mesh; why gmsh made them there is not known)."""
     _, first, count = np.unique(np.sort(cells, axis=1), axis=0, return_index=True, return_counts=True)
     twice = first[count > 1]
     if len(twice):
         at = x[cells[twice[0]]].mean(axis=0)
         raise GeometryError(f"gmsh made {len(twice)} triangles twice over the same nodes (regions that overlap), "
-                            f"the first at ({at[0]:.3f}, {at[1]:.3f}) mm, where yarn edges part at a tiny angle; "
-                            "try another --seed")
+                            f"the first at ({at[0]:.3f}, {at[1]:.3f}) mm; try another --seed")
 
 
 def _covering_regions(cell: Cell, outlines: list, sliver: float) -> tuple[dict, dict]:
