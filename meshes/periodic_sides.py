@@ -12,7 +12,7 @@ import numpy as np
 from textile_fenicsx.errors import GeometryError
 from textile_fenicsx.textile import Cell
 
-__all__ = ["box_with_marks", "periodic_sides", "side_marks", "snap_to_sides"]
+__all__ = ["box_with_marks", "outlines_on_sides", "periodic_sides", "side_marks", "snap_to_sides"]
 
 
 def snap_to_sides(points: np.ndarray, cell: Cell, tol: float) -> np.ndarray:
@@ -29,6 +29,12 @@ def snap_to_sides(points: np.ndarray, cell: Cell, tol: float) -> np.ndarray:
         near = np.abs(out[:, axis] - line) < tol
         out[near, axis] = line[near]
     return out
+
+
+def outlines_on_sides(outlines: list, cell: Cell, tol: float) -> list:
+    """snap_to_sides on both side chains of every footprint piece, [(yarn, [(right, left), ...])]."""
+    return [(i, [(snap_to_sides(r, cell, tol), snap_to_sides(l_, cell, tol)) for r, l_ in sides])
+            for i, sides in outlines]
 
 
 def side_marks(chains: list[np.ndarray], cell: Cell, tol: float) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ from textile_fenicsx import limits, memory
 from textile_fenicsx.errors import GeometryError, TextileError
 from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, to_dolfinx
 from textile_fenicsx.meshes.footprints import footprint_area, footprint_outlines, snap_to_neighbours
-from textile_fenicsx.meshes.periodic_sides import snap_to_sides
+from textile_fenicsx.meshes.periodic_sides import outlines_on_sides
 from textile_fenicsx.meshes.regions import fresh_start, gmsh_session, region_mesh
 from textile_fenicsx.meshes.tiling import tile_arrays
 from textile_fenicsx.textile import Cell, Textile
@@ -268,9 +268,8 @@ def _regions(source: Textile | None, cell: Cell, options: MeshOptions,
                 "stay within %g mm of a cell side put onto it", first, SIDE_SNAP * sliver)
     fresh_start()
     try:
-        on_sides = [(i, [(snap_to_sides(r, where, SIDE_SNAP * sliver), snap_to_sides(l_, where, SIDE_SNAP * sliver))
-                         for r, l_ in sides]) for i, sides in outlines]
-        return region_mesh(where, on_sides, options.seed, sliver, f"projected-{name}")
+        return region_mesh(where, outlines_on_sides(outlines, where, SIDE_SNAP * sliver), options.seed, sliver,
+                           f"projected-{name}")
     except Exception:
         pass
     raise first

@@ -16,7 +16,7 @@ import numpy as np
 
 from textile_fenicsx.errors import GeometryError
 from textile_fenicsx.meshes.caps import CAP_ANGLE, flip_caps, triangle_angles
-from textile_fenicsx.meshes.periodic_sides import box_with_marks, periodic_sides, side_marks, snap_to_sides
+from textile_fenicsx.meshes.periodic_sides import box_with_marks, outlines_on_sides, periodic_sides, side_marks
 from textile_fenicsx.textile import Cell
 
 __all__ = ["GROWTH", "fresh_start", "gmsh_session", "region_mesh", "session_options"]
@@ -126,8 +126,7 @@ def _covering_regions(cell: Cell, outlines: list, sliver: float) -> tuple[dict, 
     occ = gmsh.model.occ
     x0, x1, y0, y1 = cell.bounds
     if cell.periodic:
-        outlines = [(i, [(snap_to_sides(r, cell, sliver), snap_to_sides(l_, cell, sliver)) for r, l_ in sides])
-                    for i, sides in outlines]
+        outlines = outlines_on_sides(outlines, cell, sliver)
         on_x, on_y = side_marks([np.vstack((r, l_[::-1], r[:1])) for _, sides in outlines for r, l_ in sides],
                                 cell, sliver)
         box = box_with_marks(cell, on_x, on_y)
