@@ -78,7 +78,8 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
                           depth_before=before["max_depth"], depth_after=after["max_depth"],
                           thickness_before=m["thickness"]["before"], thickness_after=m["thickness"]["after"],
                           volume_change=max(map(abs, m["yarn_volume_change"])), vf=m["vf"],
-                          failures=[f["message"] for f in m["verdict"]["failures"]])
+                          failures=[f["message"] for f in m["verdict"]["failures"]],
+                          meshed_at=m["mesh"]["seed"])  # the seed of the run kept (Settings.remesh)
         if (out / "compaction.json").is_file():
             curve = json.loads((out / "compaction.json").read_text())
             record.update(pressure=curve["pressure"][-1], relaxed=curve["thickness"][0], pressed=curve["thickness"][-1],
@@ -96,13 +97,19 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
         return record
 
 
+def _case(r: dict) -> str:
+    """The case's name, with the seed it was meshed again at where its corrected yarns overlapped."""
+    again = r.get("meshed_at", r.get("seed"))
+    return r["case"] if again == r.get("seed") else f"{r['case']} (at {again:g})"
+
+
 def table(records: list[dict]) -> str:
     """A markdown table of the records, with the pass rate."""
     lines = ["| case | exit | dofs | steps | overlap mm^3 before -> after | depth mm before -> after | "
              "thickness mm | max volume change | s |", "|---|---|---|---|---|---|---|---|---|"]
     for r in records:
         if "overlap_before" in r:
-            lines.append(f"| {r['case']} | {r['exit']} | {r['dofs']} | {r['iterations']} | "
+            lines.append(f"| {_case(r)} | {r['exit']} | {r['dofs']} | {r['iterations']} | "
                          f"{r['overlap_before']:.4f} -> {r['overlap_after']:.2e} | {r['depth_before']:.4f} -> "
                          f"{r['depth_after']:.4f} | {r['thickness_before']:.3f} -> {r['thickness_after']:.3f} | "
                          f"{100 * r['volume_change']:.2f} % | {r['seconds']:.0f} |")
@@ -123,7 +130,7 @@ def compaction_table(records: list[dict]) -> str:
     for r in records:
         if "pressure" in r:
             vf = r["vf"]["after"] if r.get("vf") and r["vf"]["after"] is not None else float("nan")
-            lines.append(f"| {r['case']} | {r['exit']} | {r['relaxed']:.3f} | {r['pressed']:.3f} | {vf:.3f} | "
+            lines.append(f"| {_case(r)} | {r['exit']} | {r['relaxed']:.3f} | {r['pressed']:.3f} | {vf:.3f} | "
                          f"{r['pressure']:.3g} | {r['densest']:.3f} | {r['compaction_newton_steps']} | "
                          f"{r['imbalance']:.0e} | {(r['compaction_reason'] or '')[:80]} |")
         else:

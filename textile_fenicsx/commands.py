@@ -200,7 +200,7 @@ def solve(args) -> int:
         solver=SolverOptions(method=args.method, max_iterations=args.max_iterations,
                              penetration_tol=args.penetration_tol, out_of_core=args.out_of_core,
                              min_gap=args.min_gap),
-        correction=CorrectionOptions(), **_compaction(args))
+        correction=CorrectionOptions(), remesh=args.remesh, **_compaction(args))
     _check_repeat(args)
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     t = time.perf_counter()
@@ -243,7 +243,9 @@ def solve(args) -> int:
             # the corrected sections are rebuilt from plates meshed at the seed: a mesh too coarse
             # for the weave's crimp leaves them overlapping (the sweep's jammed plain weaves: 0.036
             # mm at seed 0.5, none at 0.35, where their thickness has converged)
-            messages.append(f"the plates were meshed at {args.seed:g} mm: try a finer --seed")
+            seeds = [r["seed"] for r in result.remeshed] + [result.settings.mesh.seed]
+            messages.append(f"the plates were meshed at {' and '.join(f'{v:g}' for v in seeds)} mm: try a finer "
+                            "--seed")
         raise SolverError("the corrected model fails its check: " + "; ".join(messages) + kept + skipped)
     return 0
 

@@ -108,6 +108,7 @@ def metrics_document(run) -> dict:
         "time_s": dict(run.times),
         "parameters": asdict(run.settings.plate), "solver": asdict(run.settings.solver),
         "mesh": asdict(run.settings.mesh), "correction": asdict(run.settings.correction),
+        "remeshed": run.remeshed,
         "mould": {"asked": run.settings.mould, "closed": summary["mould"]},
         "compaction": None if run.compaction is None else {
             "target_mm": run.compaction.target, "thickness_mm": run.compaction.thickness[-1],

@@ -15,7 +15,7 @@ from mpi4py import MPI
 import dolfinx
 from textile_fenicsx.compaction import CompactionCurve, CompactionTarget, compact, yarn_fibre_areas
 from textile_fenicsx.correct import CorrectionOptions, Flat, corrected_textile
-from textile_fenicsx.errors import TextileError
+from textile_fenicsx.errors import MeshError, SolverError, TextileError
 from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
@@ -41,6 +41,14 @@ log = logging.getLogger(__name__)
 # a full step of 10 times this)
 FIRST_SOLVE_TOL = 1e-4
 
+# A run whose corrected yarns overlap, and fail nothing else, is done again on a mesh this much
+# finer (Settings.remesh). The corrected sections are rebuilt from plates meshed at the seed, and a
+# mesh too coarse for a weave's crimp leaves them overlapping between its nodes: the sweep's jammed
+# plain weaves overlap 0.033-0.036 mm at seed 0.5 and not at 0.35, where their thickness has
+# converged (docs/sweep.md); pressed to Vf 0.5, three of the four fabrics that overlap at 0.5 pass
+# at 0.35
+FINER = 0.7
+
 
 @dataclass(frozen=True)
 class Settings:
@@ -49,7 +57,11 @@ class Settings:
     thicker), "auto" (the default) for the thickness the textile is woven to where it states one
     (3D weaves: `Textile.thickness`; no more than the model's own thickness as its plates' nodes
     see it, so that what lies between the nodes stays inside too), None for none. compaction: press
-    the relaxed fabric further, its yarns flattening (compaction.py), or None (rigid yarns)."""
+    the relaxed fabric further, its yarns flattening (compaction.py), or None (rigid yarns).
+    remesh: how many times a run whose corrected yarns overlap, and that fails no other check, is
+    done again with its seed times FINER (0: never). Not weaves with binder legs: what overlaps
+    there is the binders' sides in the input, which no mesh moves (docs/sweep.md), and TexGen's
+    refined orthogonal weave did not finish meshing at 0.35 mm in 17 minutes."""
 
     mesh: MeshOptions = MeshOptions()
     plate: PlateParameters = PlateParameters()
@@ -57,8 +69,11 @@ class Settings:
     correction: CorrectionOptions = CorrectionOptions()
     mould: float | str | None = "auto"
     compaction: CompactionTarget | None = None
+    remesh: int = 1
 
     def __post_init__(self):
+        if not (isinstance(self.remesh, int) and 0 <= self.remesh <= 3):
+            raise TextileError(f"remesh must be a whole number of times from 0 to 3, got {self.remesh!r}")
         if self.mould is not None and self.mould != "auto":
             check_length("mould thickness", self.mould)
             if self.solver.method != "exact":
@@ -89,6 +104,8 @@ class Run:
     compaction: CompactionCurve | None = None  # the platens' pressure against thickness, where pressed
     flats: list | None = None  # per textile yarn its flattening (correct.Flat), where pressed
     volume_ratio: list | None = None  # per textile yarn its plate's volume after / before, where pressed
+    legs: bool = False  # binder legs that are not plates (legs.py)
+    remeshed: list = field(default_factory=list)  # the runs done before this one: seed, failures, time
     _metrics: dict | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:
@@ -110,8 +127,10 @@ class Run:
                   f"{after['interpenetration']['volume']:.3g} mm^3") if after else "no corrected model"
         thickness = f", thickness {before['thickness']:.3f} -> {after['thickness']:.3f} mm" if after else ""
         s = self.summary()
+        again = "".join(f"; meshed again at {self.settings.mesh.seed:g} mm, the corrected yarns overlapped at "
+                        f"{r['seed']:g} mm ({r['time_s']:.1f} s)" for r in self.remeshed[-1:])
         return (f"{self.textile.name}: {check}; {volume}{thickness}; {s['dofs']} dofs, {s['iterations']} Newton "
-                f"steps, {self.times.get('total', 0.0):.1f} s")
+                f"steps, {self.times.get('total', 0.0):.1f} s{again}")
 
     @property
     def comm(self) -> MPI.Comm:
@@ -162,7 +181,46 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
         on_stage: Callable[[str], None] | None = None) -> Run:
     """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
     and correct the textile (collective over comm). on_stage(name) is called as each stage begins
-    (mesh, midsurfaces, assemble, solve, correct), on every rank (the bench measures them so)."""
+    (mesh, midsurfaces, assemble, solve, correct), on every rank (the bench measures them so).
+    Where the corrected yarns overlap, the run is done again on a finer mesh (Settings.remesh; the
+    check is then measured here); the Run returned is the last, with the earlier ones in `remeshed`."""
+    result = _run(textile, settings, comm, on_stage)
+    for _ in range(settings.remesh):
+        overlaps = _coarse_overlaps(result)
+        if not overlaps:
+            break
+        finer = replace(settings, mesh=replace(settings.mesh, seed=settings.mesh.seed * FINER))
+        log.warning("check: at seed %g mm %s; meshing at %g mm and solving again (remesh=0: never)",
+                    settings.mesh.seed, "; ".join(overlaps), finer.mesh.seed)
+        earlier = {"seed": settings.mesh.seed, "failures": overlaps, "time_s": result.times["total"]}
+        try:
+            again = _run(textile, finer, comm, on_stage)
+        except (TextileError, SolverError, MeshError) as e:  # a finer mesh that cannot be made or held
+            log.warning("remesh: at seed %g mm the run failed (%s); the run at %g mm is kept", finer.mesh.seed, e,
+                        settings.mesh.seed)
+            break
+        if not again.converged:
+            log.warning("remesh: at seed %g mm the contact iteration did not converge (%s); the run at %g mm is "
+                        "kept", finer.mesh.seed, again.solution.reason, settings.mesh.seed)
+            break
+        again.remeshed = result.remeshed + [earlier]
+        result, settings = again, finer
+    return result
+
+
+def _coarse_overlaps(result: Run) -> list[str]:
+    """The check's failures, where every one is an overlap of the corrected yarns that a finer
+    mesh may remove (Settings.remesh); else [] (collective: measures the check)."""
+    if result.corrected is None or result.legs or result.settings.solver.method != "exact":
+        return []
+    failures = result.verdict["failures"]
+    if not failures or not all(f["check"].startswith("overlap") for f in failures):
+        return []
+    return [f["message"] for f in failures]
+
+
+def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callable[[str], None] | None) -> Run:
+    """One run at settings' seed (`run`)."""
     times, mould = {}, None
     begin = on_stage or (lambda name: None)
     begin("mesh")
@@ -236,7 +294,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
         log.warning("solve: the contact iteration did not converge: %s", solution.reason)
     times["total"] = time.perf_counter() - start
     result = Run(textile, settings, ms, solution, corrected, times, mould=mould if solution.converged else None,
-                 compaction=curve, flats=flats, volume_ratio=ratio)
+                 compaction=curve, flats=flats, volume_ratio=ratio, legs=split.any)
     s = result.summary()
     log.info("solve: %d dofs, %d Newton steps, max penetration %.3e mm, max |w| %.4f mm, %s", s["dofs"],
              s["iterations"], s["max_penetration_nodal"], s["max_abs_w"],
