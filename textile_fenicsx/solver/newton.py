@@ -58,8 +58,16 @@ MAX_WEIGHT_PRESSED = 1e12
 # largest internal force, and above this the compaction warns that its pressure is uncertain.
 # Not a condition to stop: where yarns are packed to the maximum under a pair (the polygon
 # weaves), or a platen node's slack fell to round-off before its force grew (TexGen's refined
-# jammed plain weave), it stays at 0.8-2 however long the iteration goes on (100 steps)
+# jammed plain weave), it stays at 0.8-2 however long the iteration goes on (100 steps). Such
+# forces are refitted to equilibrium at the settled unknowns (recover_forces): over `make
+# sweep-compaction` every step then balances to 3e-7 or better, and the refined jammed plain
+# weave's pressure at Vf 0.5 is 1.18565 MPa from 1, 2, 3 or 4 steps (1.1846, 1.1076, 1.1137 and
+# 1.1139 before)
 DUAL_RTOL = 1e-6
+# where a compaction step settles out of balance, its forces are refitted to equilibrium
+# (_InteriorPoint.recover_forces): rounds of opening constraints whose fitted force is negative,
+# and the conjugate gradients' tolerance and cap on each fit
+RECOVERY_ROUNDS, RECOVERY_RTOL, RECOVERY_ITERATIONS = 5, 1e-12, 2000
 # a warm start (from a related problem's solution) keeps its slacks at least this far from 0 [mm]
 WARM_GAP = 1e-5
 # steps in a row that move nothing while nodes still penetrate: the constraints cannot all hold
@@ -146,15 +154,71 @@ class _InteriorPoint:
     def max(self, v: np.ndarray) -> float:
         return _global_max(self.comm, v)
 
-    def imbalance(self) -> float:
+    def imbalance(self, lam: np.ndarray | None = None) -> float:
         """The dual residual K x - f - C^T lam over the internal forces K x - f, in the largest
-        entry of each [-] (collective)."""
+        entry of each [-] (collective; lam: the interior point's own by default)."""
         r = self.problem.gradient(self.x, None)
         forces = r.norm(PETSc.NormType.NORM_INFINITY)
-        self.add_transpose(r, self.lam, -1.0)
+        self.add_transpose(r, self.lam if lam is None else lam, -1.0)
         out = r.norm(PETSc.NormType.NORM_INFINITY) / max(forces, 1e-300)
         r.destroy()
         return out
+
+    def recover_forces(self) -> tuple[float, float]:
+        """Where a settled solve's forces are out of balance (a node's slack fell to round-off
+        before its force grew, or yarns are packed to the maximum under a pair), the forces of
+        the closed constraints (lam > k s, as `_ended` counts them) refitted to equilibrium at the
+        settled x: the least-squares lam_A of C_A^T lam_A = K x - f, by conjugate gradients on
+        C_A C_A^T (each row of C is +-1 at two unknowns at most), constraints whose fitted force
+        is negative opened and the fit repeated (RECOVERY_ROUNDS). Kept, in self.lam, where it
+        balances better than the interior point's forces. Returns the imbalance (`imbalance`)
+        before and after (collective)."""
+        before = self.imbalance()
+        r = self.problem.gradient(self.x, None)
+        rhs = self.gaps(r) - self.nodes.g0  # C (K x - f)
+        r.destroy()
+        closed = self.lam > self.k * self.s
+        lam = self.lam.copy()
+        for _ in range(RECOVERY_ROUNDS):
+            fitted = self._least_squares(rhs, closed)
+            lam = np.where(closed, np.maximum(fitted, 0.0), self.lam)
+            negative = self.comm.allreduce(int(np.sum(closed & (fitted < 0))), op=MPI.SUM)
+            if not negative:
+                break
+            closed = closed & (fitted >= 0)
+        after = self.imbalance(lam)
+        if after < before:
+            self.lam = lam
+        return before, min(before, after)
+
+    def _least_squares(self, rhs: np.ndarray, on: np.ndarray) -> np.ndarray:
+        """lam on the constraints `on` (0 elsewhere) solving C_on C_on^T lam = rhs on them (rhs: C
+        applied to the forces K x - f), by conjugate gradients to RECOVERY_RTOL (collective)."""
+        work = self.problem.b_fixed.duplicate()
+
+        def normal(v):  # C_on C_on^T v
+            work.zeroEntries()
+            self.add_transpose(work, np.where(on, v, 0.0))
+            return np.where(on, self.gaps(work) - self.nodes.g0, 0.0)
+
+        def dot(a, b):
+            return self.comm.allreduce(float(np.dot(a, b)), op=MPI.SUM)
+
+        lam = np.zeros(len(rhs))
+        res = np.where(on, rhs, 0.0)
+        d, rr = res.copy(), dot(res, res)
+        stop = (RECOVERY_RTOL ** 2) * rr
+        for _ in range(RECOVERY_ITERATIONS):
+            if rr <= stop or rr == 0.0:
+                break
+            q = normal(d)
+            a = rr / dot(d, q)
+            lam += a * d
+            res -= a * q
+            rr, previous = dot(res, res), rr
+            d = res + (rr / previous) * d
+        work.destroy()
+        return lam
 
     def mean(self, v: np.ndarray) -> float:
         return self.comm.allreduce(float(np.sum(v)), op=MPI.SUM) / self.count
@@ -231,6 +295,10 @@ def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
         if line["max_penetration"] <= opts.penetration_tol and (good <= opts.displacement_tol or floor):
             if problem.compaction is not None:  # the platens' pressure is read from the forces
                 line["imbalance"] = ip.imbalance()
+                if line["imbalance"] > DUAL_RTOL:
+                    line["imbalance_settled"], line["imbalance"] = ip.recover_forces()
+                    log.info("contact: the settled forces, out of balance by %.1e of the largest, refitted to "
+                             "equilibrium: %.1e", line["imbalance_settled"], line["imbalance"])
             at_floor = (f"; the next direction ({line['direction_mm']:.1e} mm) was cut to {line['step']:.1e} of "
                         "itself at the precision floor" if floor and good > opts.displacement_tol else "")
             return _ended(problem, ip, it, history, True,
