@@ -46,7 +46,7 @@ FIRST_SOLVE_TOL = 1e-4
 # mesh too coarse for a weave's crimp leaves them overlapping between its nodes: the sweep's jammed
 # plain weaves overlap 0.033-0.036 mm at seed 0.5 and not at 0.35, where their thickness has
 # converged (docs/sweep.md); pressed to Vf 0.5, three of the four fabrics that overlap at 0.5 pass
-# at 0.35
+# at 0.35. A contact iteration that wandered to its cap is done again too (_coarse_mesh_failures)
 FINER = 0.7
 
 
@@ -58,8 +58,9 @@ class Settings:
     (3D weaves: `Textile.thickness`; no more than the model's own thickness as its plates' nodes
     see it, so that what lies between the nodes stays inside too), None for none. compaction: press
     the relaxed fabric further, its yarns flattening (compaction.py), or None (rigid yarns).
-    remesh: how many times a run whose corrected yarns overlap, and that fails no other check, is
-    done again with its seed times FINER (0: never). Not weaves with binder legs: what overlaps
+    remesh: how many times a run whose corrected yarns overlap, and that fails no other check, or
+    whose contact iteration reached its cap, is done again with its seed times FINER (0: never;
+    `_coarse_mesh_failures`). Not weaves with binder legs: what overlaps
     there is the binders' sides in the input, which no mesh moves (docs/sweep.md), and TexGen's
     refined orthogonal weave did not finish meshing at 0.35 mm in 17 minutes."""
 
@@ -127,8 +128,9 @@ class Run:
                   f"{after['interpenetration']['volume']:.3g} mm^3") if after else "no corrected model"
         thickness = f", thickness {before['thickness']:.3f} -> {after['thickness']:.3f} mm" if after else ""
         s = self.summary()
-        again = "".join(f"; meshed again at {self.settings.mesh.seed:g} mm, the corrected yarns overlapped at "
-                        f"{r['seed']:g} mm ({r['time_s']:.1f} s)" for r in self.remeshed[-1:])
+        again = "".join(f"; meshed again at {self.settings.mesh.seed:g} mm, the run at {r['seed']:g} mm "
+                        f"{'reached the step cap' if 'reached its cap' in r['failures'][0] else 'overlapped'} "
+                        f"({r['time_s']:.1f} s)" for r in self.remeshed[-1:])
         return (f"{self.textile.name}: {check}; {volume}{thickness}; {s['dofs']} dofs, {s['iterations']} Newton "
                 f"steps, {self.times.get('total', 0.0):.1f} s{again}")
 
@@ -182,17 +184,18 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
     and correct the textile (collective over comm). on_stage(name) is called as each stage begins
     (mesh, midsurfaces, assemble, solve, correct), on every rank (the bench measures them so).
-    Where the corrected yarns overlap, the run is done again on a finer mesh (Settings.remesh; the
-    check is then measured here); the Run returned is the last, with the earlier ones in `remeshed`."""
+    Where the corrected yarns overlap, or the contact iteration wandered to its cap, the run is
+    done again on a finer mesh (Settings.remesh; the check is then measured here); the Run
+    returned is the last that converged, with the earlier ones in `remeshed`."""
     result = _run(textile, settings, comm, on_stage)
     for _ in range(settings.remesh):
-        overlaps = _coarse_overlaps(result)
-        if not overlaps:
+        why = _coarse_mesh_failures(result)
+        if not why:
             break
         finer = replace(settings, mesh=replace(settings.mesh, seed=settings.mesh.seed * FINER))
-        log.warning("check: at seed %g mm %s; meshing at %g mm and solving again (remesh=0: never)",
-                    settings.mesh.seed, "; ".join(overlaps), finer.mesh.seed)
-        earlier = {"seed": settings.mesh.seed, "failures": overlaps, "time_s": result.times["total"]}
+        log.warning("remesh: at seed %g mm %s; meshing at %g mm and solving again (remesh=0: never)",
+                    settings.mesh.seed, "; ".join(why), finer.mesh.seed)
+        earlier = {"seed": settings.mesh.seed, "failures": why, "time_s": result.times["total"]}
         try:
             again = _run(textile, finer, comm, on_stage)
         except (TextileError, SolverError, MeshError) as e:  # a finer mesh that cannot be made or held
@@ -200,19 +203,26 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
                         settings.mesh.seed)
             break
         if not again.converged:
-            log.warning("remesh: at seed %g mm the contact iteration did not converge (%s); the run at %g mm is "
-                        "kept", finer.mesh.seed, again.solution.reason, settings.mesh.seed)
+            log.warning("remesh: at seed %g mm the contact iteration did not converge either (%s); the run at %g mm "
+                        "is kept", finer.mesh.seed, again.solution.reason, settings.mesh.seed)
             break
         again.remeshed = result.remeshed + [earlier]
         result, settings = again, finer
     return result
 
 
-def _coarse_overlaps(result: Run) -> list[str]:
-    """The check's failures, where every one is an overlap of the corrected yarns that a finer
-    mesh may remove (Settings.remesh); else [] (collective: measures the check)."""
-    if result.corrected is None or result.legs or result.settings.solver.method != "exact":
+def _coarse_mesh_failures(result: Run) -> list[str]:
+    """What a finer mesh may mend (Settings.remesh), or []: the check's failures where every one
+    is an overlap of the corrected yarns, or a contact iteration that reached its cap (the
+    sweep's jammed plain weaves wander at 0.5 mm where four footprints nearly meet, by 1e-5 mm a
+    step for 400 steps, and converge at 0.35 in 25). Not a run that stopped for another reason
+    (yarns that no position separates, a singular or non-convex system), with binder legs, or by
+    the penalty method, whose overlap is its own (collective: measures the check)."""
+    if result.legs or result.settings.solver.method != "exact":
         return []
+    if result.corrected is None:
+        reason = result.solution.reason
+        return [reason] if "reached its cap" in reason else []
     failures = result.verdict["failures"]
     if not failures or not all(f["check"].startswith("overlap") for f in failures):
         return []
