@@ -47,8 +47,9 @@ def build(name: str, **sizes) -> Textile:
 def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, int] | None = None,
           free_edges: bool = False, comm=None, **settings) -> Run:
     """Correct a textile: its projected mesh at element size `seed` [mm], the plates' contact
-    solve (`method` "exact" or the paper's "penalty"), the corrected textile and, on first use of
-    `run.metrics`, its check. `repeat=(nx, ny)`: a coupon of nx x ny cells (with free edges if
+    solve (`method` "exact" or the paper's "penalty"), the corrected textile and its check (measured
+    in the run, which meshes again where it finds overlaps, `remesh`; with remesh=0 on first use of
+    `run.metrics`). `repeat=(nx, ny)`: a coupon of nx x ny cells (with free edges if
     asked). Other settings by name: `plate=PlateParameters(...)`, `mesh=MeshOptions(...)`,
     `solver=SolverOptions(...)`, `correction=CorrectionOptions(...)` (replacing seed/method)."""
     from mpi4py import MPI

@@ -1,7 +1,8 @@
 """One way through the house (DESIGN.md 2): textile -> projected mesh -> mid-surfaces -> solve ->
 corrected textile. `run` does it and returns a `Run`: the corrected textile, the solution, the times
 of the stages; its metrics (and the verdict of the check on the corrected model) are measured on
-first use, and `write` makes the output folder."""
+first use (in `run` itself where it may mesh again, Settings.remesh), and `write` makes the output
+folder."""
 
 import logging
 import time
