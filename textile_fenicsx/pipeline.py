@@ -214,9 +214,9 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
 
 def _coarse_mesh_failures(result: Run) -> list[str]:
     """What a finer mesh may mend (Settings.remesh), or []: the check's failures where every one
-    is an overlap of the corrected yarns, or a contact iteration that reached its cap (the
-    sweep's jammed plain weaves wander at 0.5 mm where four footprints nearly meet, by 1e-5 mm a
-    step for 400 steps, and converge at 0.35 in 25). Not a run that stopped for another reason
+    is an overlap of the corrected yarns, or a contact iteration that reached its cap (our jammed
+    plain weave wanders at 0.5 mm where four footprints nearly meet, by 1e-5 mm a step for 400
+    steps, and converges at 0.35 in 25). Not a run that stopped for another reason
     (yarns that no position separates, a singular or non-convex system), with binder legs, or by
     the penalty method, whose overlap is its own (collective: measures the check)."""
     if result.legs or result.settings.solver.method != "exact":

@@ -164,21 +164,19 @@ class _InteriorPoint:
         r.destroy()
         return out
 
-    def recover_forces(self) -> tuple[float, float]:
+    def recover_forces(self, before: float) -> float:
         """Where a settled solve's forces are out of balance (a node's slack fell to round-off
         before its force grew, or yarns are packed to the maximum under a pair), the forces of
         the closed constraints (lam > k s, as `_ended` counts them) refitted to equilibrium at the
         settled x: the least-squares lam_A of C_A^T lam_A = K x - f, by conjugate gradients on
         C_A C_A^T (each row of C is +-1 at two unknowns at most), constraints whose fitted force
         is negative opened and the fit repeated (RECOVERY_ROUNDS). Kept, in self.lam, where it
-        balances better than the interior point's forces. Returns the imbalance (`imbalance`)
-        before and after (collective)."""
-        before = self.imbalance()
+        balances better than the interior point's forces, whose imbalance is `before`. Returns the
+        imbalance (`imbalance`) after (collective)."""
         r = self.problem.gradient(self.x, None)
-        rhs = self.gaps(r) - self.nodes.g0  # C (K x - f)
+        rhs = self._times_c(r)  # C (K x - f)
         r.destroy()
         closed = self.lam > self.k * self.s
-        lam = self.lam.copy()
         for _ in range(RECOVERY_ROUNDS):
             fitted = self._least_squares(rhs, closed)
             lam = np.where(closed, np.maximum(fitted, 0.0), self.lam)
@@ -189,7 +187,11 @@ class _InteriorPoint:
         after = self.imbalance(lam)
         if after < before:
             self.lam = lam
-        return before, min(before, after)
+        return min(before, after)
+
+    def _times_c(self, vec: PETSc.Vec) -> np.ndarray:
+        """C vec at this rank's constraints (the gaps' linear part)."""
+        return self.gaps(vec) - self.nodes.g0
 
     def _least_squares(self, rhs: np.ndarray, on: np.ndarray) -> np.ndarray:
         """lam on the constraints `on` (0 elsewhere) solving C_on C_on^T lam = rhs on them (rhs: C
@@ -199,7 +201,7 @@ class _InteriorPoint:
         def normal(v):  # C_on C_on^T v
             work.zeroEntries()
             self.add_transpose(work, np.where(on, v, 0.0))
-            return np.where(on, self.gaps(work) - self.nodes.g0, 0.0)
+            return np.where(on, self._times_c(work), 0.0)
 
         def dot(a, b):
             return self.comm.allreduce(float(np.dot(a, b)), op=MPI.SUM)
@@ -296,7 +298,8 @@ def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
             if problem.compaction is not None:  # the platens' pressure is read from the forces
                 line["imbalance"] = ip.imbalance()
                 if line["imbalance"] > DUAL_RTOL:
-                    line["imbalance_settled"], line["imbalance"] = ip.recover_forces()
+                    line["imbalance_settled"] = line["imbalance"]
+                    line["imbalance"] = ip.recover_forces(line["imbalance_settled"])
                     log.info("contact: the settled forces, out of balance by %.1e of the largest, refitted to "
                              "equilibrium: %.1e", line["imbalance_settled"], line["imbalance"])
             at_floor = (f"; the next direction ({line['direction_mm']:.1e} mm) was cut to {line['step']:.1e} of "
