@@ -215,6 +215,51 @@ def test_forces_that_settled_out_of_balance_are_refitted_and_the_pressure_is_one
     assert one.compaction.pressure[-1] == pytest.approx(two.compaction.pressure[-1], rel=1e-6)
 
 
+def _jammed_plain_pressed(reference_dir, **settings):
+    from textile_fenicsx.tg3 import read_tg3
+
+    weave = read_tg3(reference_dir / "fabrics" / "plain_w0.98_h0.2_ellipse.tg3")
+    return run(weave, Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.5), **settings))
+
+
+@pytest.mark.mpi
+def test_a_factor_that_lost_the_plates_names_the_coarse_mesh(reference_dir):
+    # TexGen's jammed plain weave pressed at seed 0.5 without meshing again: where the yarns
+    # flatten the weights at the closed nodes reach 1e12 of the plates' stiffness and the factor
+    # no longer resolves them (solver/problem.py, RESOLVED_WEIGHTS); its factorisation fails (MUMPS
+    # INFOG(1) = -10) at the jammed corner. The error says so, on every rank, and what to try
+    from textile_fenicsx.errors import UnresolvedError
+
+    with pytest.raises(UnresolvedError, match="too coarse for the weave's corners; try a finer --seed"):
+        _jammed_plain_pressed(reference_dir, remesh=0)
+
+
+@pytest.mark.serial
+def test_the_jammed_plain_weave_pressed_to_vf_half_passes_where_the_weights_outgrow_the_factor(reference_dir):
+    # TexGen's jammed plain weave (width/spacing 0.98) pressed to Vf 0.5 by the default command.
+    # Where the yarns flatten, the weights at the closed nodes reach 1e12 of the plates' stiffness
+    # and the factor no longer resolves the plates (solver/problem.py, RESOLVED_WEIGHTS). At seed
+    # 0.5 the factorisation then failed as singular (MUMPS INFOG(1) = -10), and at 0.35 the
+    # compaction stopped as "not convex" (3 negative pivots at an eigenvalue nearest zero of +4e-3
+    # against a largest stiffness of 4e17): both ended the run. Now the first is meshed again
+    # (UnresolvedError), the second is read as round-off, and the run at 0.35, which overlaps
+    # 0.011 mm deep where a yarn is packed to the maximum, is meshed again at 0.245, where it
+    # passes (Settings.remesh, twice by default)
+    from textile_fenicsx.solver.newton import DUAL_RTOL
+
+    r = _jammed_plain_pressed(reference_dir)
+    assert [x["seed"] for x in r.remeshed] == [0.5, 0.35] and r.settings.mesh.seed == pytest.approx(0.245)
+    assert "singular" in r.remeshed[0]["failures"][0] and "overlap" in r.remeshed[1]["failures"][0]
+    curve = r.compaction
+    assert curve.reason is None and r.verdict["passed"], r.verdict["failures"]
+    assert curve.vf[-1] == pytest.approx(0.5, rel=1e-12)
+    # the law's bound holds, the forces balance, and the least energy's derivative (the pressure)
+    # grows as the platens close
+    assert max(curve.densest) <= 0.9069 and max(r.metrics["after"]["yarn_vf"]) <= 0.9069
+    assert max(curve.imbalance) <= DUAL_RTOL, curve.imbalance
+    assert np.all(np.diff(curve.pressure) > 0), curve.pressure
+
+
 @pytest.mark.mpi
 def test_the_satin_pressed_to_six_tenths_of_its_thickness_is_the_same_on_two_ranks():
     # the issue's case: the 4-harness satin pressed to 0.6 of its relaxed thickness (0.868 mm at

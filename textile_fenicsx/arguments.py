@@ -171,10 +171,10 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.add_argument("--penetration-tol", type=float, default=1e-6,
                    help="exact method: penetration and complementarity tolerance at the nodes [mm] (1e-6)")
     p.add_argument("--max-iterations", type=int, default=100, help="cap on contact iterations (100)")
-    p.add_argument("--remesh", type=int, default=1, metavar="N",
+    p.add_argument("--remesh", type=int, default=2, metavar="N",
                    help="exact method: where the corrected yarns overlap and nothing else fails the check, or the "
                    "contact iteration reaches its cap, mesh again with the seed x 0.7 and solve again, up to N "
-                   "times (1; 0: never; not weaves with binder legs)")
+                   "times (2; 0: never; not weaves with binder legs)")
     p.add_argument("--volume-mesh", choices=["voxel", "tet"], metavar="KIND",
                    help="then mesh the corrected model's periodic cell with volume elements (voxel or tet: the files "
                    "of volume-mesh, in DIR)")

@@ -17,6 +17,12 @@ class SolverError(RuntimeError):
     """A linear or nonlinear solve did not converge, or gave a non-finite answer."""
 
 
+class UnresolvedError(SolverError):
+    """A direct solve that failed (singular, or negative on the eigenvalue nearest zero) where the
+    interior point's weights had outgrown what the factor resolves of the plates: a near-null mode
+    of a mesh too coarse for the weave (a jammed corner), which a finer mesh may mend."""
+
+
 class MeshError(RuntimeError):
     """A mesher that failed on input it accepted (gmsh's own error): the run failed, not the input."""
 

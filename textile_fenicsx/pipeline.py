@@ -16,7 +16,7 @@ from mpi4py import MPI
 import dolfinx
 from textile_fenicsx.compaction import CompactionCurve, CompactionTarget, compact, yarn_fibre_areas
 from textile_fenicsx.correct import CorrectionOptions, Flat, corrected_textile
-from textile_fenicsx.errors import MeshError, SolverError, TextileError
+from textile_fenicsx.errors import MeshError, SolverError, TextileError, UnresolvedError
 from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
@@ -47,7 +47,9 @@ FIRST_SOLVE_TOL = 1e-4
 # mesh too coarse for a weave's crimp leaves them overlapping between its nodes: the sweep's jammed
 # plain weaves overlap 0.033-0.036 mm at seed 0.5 and not at 0.35, where their thickness has
 # converged (docs/sweep.md); pressed to Vf 0.5, three of the four fabrics that overlap at 0.5 pass
-# at 0.35. A contact iteration that wandered to its cap is done again too (_coarse_mesh_failures)
+# at 0.35. A contact iteration that wandered to its cap is done again too (_coarse_mesh_failures).
+# Twice by default (Settings.remesh): pressed to Vf 0.5, the jammed plain weaves overlap 0.010 mm
+# deep at 0.35, where a yarn is packed to the maximum, and pass at 0.245 (docs/sweep.md)
 FINER = 0.7
 
 
@@ -60,7 +62,8 @@ class Settings:
     see it, so that what lies between the nodes stays inside too), None for none. compaction: press
     the relaxed fabric further, its yarns flattening (compaction.py), or None (rigid yarns).
     remesh: how many times a run whose corrected yarns overlap, and that fails no other check, or
-    whose contact iteration reached its cap, is done again with its seed times FINER (0: never;
+    whose contact iteration reached its cap, or whose factor lost the plates where the yarns flatten
+    (UnresolvedError), is done again with its seed times FINER (0: never;
     `_coarse_mesh_failures`). Not weaves with binder legs: what overlaps
     there is the binders' sides in the input, which no mesh moves (docs/sweep.md), and TexGen's
     refined orthogonal weave did not finish meshing at 0.35 mm in 17 minutes."""
@@ -71,7 +74,7 @@ class Settings:
     correction: CorrectionOptions = CorrectionOptions()
     mould: float | str | None = "auto"
     compaction: CompactionTarget | None = None
-    remesh: int = 1
+    remesh: int = 2
 
     def __post_init__(self):
         if not (isinstance(self.remesh, int) and 0 <= self.remesh <= 3):
@@ -185,30 +188,43 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
     and correct the textile (collective over comm). on_stage(name) is called as each stage begins
     (mesh, midsurfaces, assemble, solve, correct), on every rank (the bench measures them so).
-    Where the corrected yarns overlap, or the contact iteration wandered to its cap, the run is
-    done again on a finer mesh (Settings.remesh; the check is then measured here); the Run
-    returned is the last that converged, with the earlier ones in `remeshed`."""
-    result = _run(textile, settings, comm, on_stage)
-    for _ in range(settings.remesh):
-        why = _coarse_mesh_failures(result)
+    Where the corrected yarns overlap, or the contact iteration wandered to its cap, or its
+    factor lost the plates where the yarns flatten (UnresolvedError), the run is done again on a
+    finer mesh (Settings.remesh; the check is then measured here); the Run returned is the last
+    that converged, with the earlier ones in `remeshed`."""
+    result: Run | None = None
+    earlier: list[dict] = []  # the runs before the one kept
+    why: list[str] = []
+    spent = 0.0
+    for attempt in range(settings.remesh + 1):
+        if attempt:
+            earlier.append({"seed": settings.mesh.seed, "failures": why, "time_s": spent})
+            finer = replace(settings, mesh=replace(settings.mesh, seed=settings.mesh.seed * FINER))
+            log.warning("remesh: at seed %g mm %s; meshing at %g mm and solving again (remesh=0: never)",
+                        settings.mesh.seed, "; ".join(why), finer.mesh.seed)
+            settings = finer
+        start = time.perf_counter()
+        try:
+            again = _run(textile, settings, comm, on_stage)
+        except (TextileError, SolverError, MeshError) as e:  # a finer mesh that cannot be made or held
+            if result is None and isinstance(e, UnresolvedError) and attempt < settings.remesh:
+                # the factor lost the plates, at a corner the mesh is too coarse for: mesh finer
+                why, spent = [str(e)], time.perf_counter() - start
+                continue
+            if result is None:
+                raise
+            log.warning("remesh: at seed %g mm the run failed (%s); the run at %g mm is kept", settings.mesh.seed, e,
+                        result.settings.mesh.seed)
+            break
+        if result is not None and not again.converged:
+            log.warning("remesh: at seed %g mm the contact iteration did not converge either (%s); the run at %g mm "
+                        "is kept", settings.mesh.seed, again.solution.reason, result.settings.mesh.seed)
+            break
+        again.remeshed, result = list(earlier), again
+        why, spent = _coarse_mesh_failures(result), result.times["total"]
         if not why:
             break
-        finer = replace(settings, mesh=replace(settings.mesh, seed=settings.mesh.seed * FINER))
-        log.warning("remesh: at seed %g mm %s; meshing at %g mm and solving again (remesh=0: never)",
-                    settings.mesh.seed, "; ".join(why), finer.mesh.seed)
-        earlier = {"seed": settings.mesh.seed, "failures": why, "time_s": result.times["total"]}
-        try:
-            again = _run(textile, finer, comm, on_stage)
-        except (TextileError, SolverError, MeshError) as e:  # a finer mesh that cannot be made or held
-            log.warning("remesh: at seed %g mm the run failed (%s); the run at %g mm is kept", finer.mesh.seed, e,
-                        settings.mesh.seed)
-            break
-        if not again.converged:
-            log.warning("remesh: at seed %g mm the contact iteration did not converge either (%s); the run at %g mm "
-                        "is kept", finer.mesh.seed, again.solution.reason, settings.mesh.seed)
-            break
-        again.remeshed = result.remeshed + [earlier]
-        result, settings = again, finer
+    assert result is not None  # the first run returned, or its error was raised
     return result
 
 
@@ -217,7 +233,8 @@ def _coarse_mesh_failures(result: Run) -> list[str]:
     is an overlap of the corrected yarns, or a contact iteration that reached its cap (our jammed
     plain weave wanders at 0.5 mm where four footprints nearly meet, by 1e-5 mm a step for 400
     steps, and converges at 0.35 in 25). Not a run that stopped for another reason
-    (yarns that no position separates, a singular or non-convex system), with binder legs, or by
+    (yarns that no position separates, a singular or non-convex system, unless the weights had
+    outgrown the factor: UnresolvedError, which `run` catches), with binder legs, or by
     the penalty method, whose overlap is its own (collective: measures the check)."""
     if result.legs or result.settings.solver.method != "exact":
         return []
