@@ -2,6 +2,8 @@
 # once when the host has no DOLFINx 0.9). `make help` lists the targets.
 ENV      := bin/fenicsx-env
 PYTEST   := python3 -m pytest -p no:cacheprovider
+# the serial pass on two pytest-xdist workers (one per core; 0: in one process)
+WORKERS  ?= 2
 MPIRUN   := mpirun -n 2
 OUT      ?= output
 
@@ -10,7 +12,8 @@ OUT      ?= output
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
 	@echo "make demos        every demo, outputs in $(OUT)/<demo>/"
-	@echo "make test         serial test pass, then the mpi-marked tests under $(MPIRUN)"
+	@echo "make test         serial test pass (on WORKERS=2 pytest-xdist workers), then the mpi-marked tests under"
+	@echo "                  $(MPIRUN)"
 	@echo "make lint         ruff (rules in pyproject.toml) and mypy on the package; pinned tools from PyPI,"
 	@echo "                  installed once by bin/lint on the host (under a minute), then a few seconds"
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
@@ -45,7 +48,7 @@ demos:
 test: test-serial test-mpi
 
 test-serial:
-	$(ENV) $(PYTEST) -m "not sweep" tests
+	$(ENV) $(PYTEST) -n $(WORKERS) -m "not sweep" tests
 
 test-mpi:
 	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
