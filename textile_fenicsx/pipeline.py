@@ -221,6 +221,8 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
                         "is kept", settings.mesh.seed, again.solution.reason, result.settings.mesh.seed)
             break
         again.remeshed, result = list(earlier), again
+        if attempt == settings.remesh:  # no finer run left (remesh=0: the check stays lazy)
+            break
         why, spent = _coarse_mesh_failures(result), result.times["total"]
         if not why:
             break
