@@ -351,12 +351,13 @@ class ContactProblem:
         # without pivoting meets its null space as a pivot of round-off size and either sign
         held_by_nothing = self.params.Et == 0 and negative > 0
         if reason <= 0 or nulls > 0 or held_by_nothing:
-            hint = ("with Et = 0 a yarn that touches no other yarn is held by nothing: give Et > 0"
-                    if self.params.Et == 0 else "check the stiffnesses (Db1, Db2, sigma1) for zeros")
-            error = UnresolvedError if self._unresolved() else SolverError
-            if error is UnresolvedError:
-                hint = (f"the weights of the closed contacts ({self._largest_weight:.1e} N/mm) outgrew what the "
-                        "factor resolves of the plates: a mesh too coarse for the weave's corners; try a finer --seed")
+            error, hint = SolverError, ("with Et = 0 a yarn that touches no other yarn is held by nothing: give "
+                                        "Et > 0" if self.params.Et == 0 else
+                                        "check the stiffnesses (Db1, Db2, sigma1) for zeros")
+            if self._unresolved():
+                error, hint = UnresolvedError, (f"the weights of the closed contacts ({self._largest_weight:.1e} "
+                                                "N/mm) outgrew what the factor resolves of the plates: a mesh too "
+                                                "coarse for the weave's corners; try a finer --seed")
             mumps = mumps_error(ksp)
             raise error(f"the linear system is singular at {what} (PETSc reason {reason}, {nulls} null pivots, "
                         f"{negative} negative{', ' + mumps if mumps else ''}): {hint}")
@@ -389,8 +390,9 @@ class ContactProblem:
         eigenvalue, scale = v.dot(Kv), self.K.getDiagonal().max()[1]
         for vec in (v, y, Kv):
             vec.destroy()
-        if (negative > ROUND_OFF_PIVOTS and not self._unresolved()) or eigenvalue < -1e-10 * scale:
-            error = UnresolvedError if self._unresolved() else SolverError
+        unresolved = self._unresolved()
+        if (negative > ROUND_OFF_PIVOTS and not unresolved) or eigenvalue < -1e-10 * scale:
+            error = UnresolvedError if unresolved else SolverError
             raise error(f"the energy is not convex at {what}: its matrix has {negative} negative pivots and an "
                         f"eigenvalue {eigenvalue:.2e} (largest stiffness {scale:.2e}; a mesh the bending penalty "
                         "cannot hold?)")
