@@ -13,7 +13,7 @@ slow); `make sweep` prints the table:
 
 With --compaction K --vf V (`make sweep-compaction`: K 50 MPa, Vf 0.5) every 2D fabric is solved
 and then pressed to Vf V (README, Compaction); the 3D weaves are left out (their binder legs are
-not plates: compaction refuses them).
+not plates: compaction refuses them). --spreading S lets the pressed yarns spread (spreading.py).
 """
 
 import argparse
@@ -82,6 +82,8 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
                           meshed_at=m["mesh"]["seed"])  # the seed of the run kept (Settings.remesh)
         if (out / "compaction.json").is_file():
             curve = json.loads((out / "compaction.json").read_text())
+            widths = m["compaction"]["width_factors"] if metrics.is_file() else None
+            record.update(width_factors=widths)
             record.update(pressure=curve["pressure"][-1], relaxed=curve["thickness"][0], pressed=curve["thickness"][-1],
                           densest=max(curve["densest"]), compaction_reason=curve["reason"],
                           compaction_newton_steps=sum(curve["iterations"]), imbalance=max(curve["imbalance"]))
@@ -121,20 +123,26 @@ def table(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _spread(widths: list | None) -> str:
+    """The width factors of a run whose yarns spread: their range, or - where none spread."""
+    return "-" if not widths else f"{min(widths):.3f}-{max(widths):.3f}"
+
+
 def compaction_table(records: list[dict]) -> str:
     """The compaction's numbers per case: relaxed and pressed thickness, Vf, pressure, densest yarn,
     the compaction's Newton steps (its steps and the last one's re-solve) and the largest imbalance
     of its forces when a step settled (solver/newton.py, DUAL_RTOL)."""
     lines = ["| case | exit | relaxed mm | pressed mm | Vf after (rays) | pressure MPa | densest phi | Newton | "
-             "imbalance | stopped |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "imbalance | spread | stopped |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in records:
         if "pressure" in r:
             vf = r["vf"]["after"] if r.get("vf") and r["vf"]["after"] is not None else float("nan")
             lines.append(f"| {_case(r)} | {r['exit']} | {r['relaxed']:.3f} | {r['pressed']:.3f} | {vf:.3f} | "
                          f"{r['pressure']:.3g} | {r['densest']:.3f} | {r['compaction_newton_steps']} | "
-                         f"{r['imbalance']:.0e} | {(r['compaction_reason'] or '')[:80]} |")
+                         f"{r['imbalance']:.0e} | {_spread(r.get('width_factors'))} | "
+                         f"{(r['compaction_reason'] or '')[:80]} |")
         else:
-            lines.append(f"| {r['case']} | {r['exit']} | | | | | | | | {' '.join(r.get('error', []))[:80]} |")
+            lines.append(f"| {r['case']} | {r['exit']} | | | | | | | | | {' '.join(r.get('error', []))[:80]} |")
     return "\n".join(lines)
 
 
@@ -147,8 +155,11 @@ def main() -> None:
     parser.add_argument("--keep", type=Path, help="copy each run's model files and metrics.json to KEEP/NAME/")
     parser.add_argument("--compaction", type=float, metavar="K", help="press each 2D fabric (K: k E_f [MPa])")
     parser.add_argument("--vf", type=float, default=0.5, help="with --compaction: the target Vf (0.5)")
+    parser.add_argument("--spreading", type=float, default=0.0, help="with --compaction: the width spreading "
+                        "exponent S (0: widths kept)")
     args = parser.parse_args()
-    extra = () if args.compaction is None else ("--compaction", str(args.compaction), "--vf", str(args.vf))
+    extra = () if args.compaction is None else ("--compaction", str(args.compaction), "--vf", str(args.vf),
+                                                "--spreading", str(args.spreading))
     records = []
     for name in args.only or cases(two_d=args.compaction is not None):
         print(f"sweep: {name}", file=sys.stderr, flush=True)

@@ -202,6 +202,10 @@ def _solve_command(subparsers: Subparsers) -> None:
                    help="with --compaction: the platens close in N equal steps, one point of the curve each (4)")
     p.add_argument("--max-packing", type=float, default=0.9069, metavar="PHI",
                    help="with --compaction: the largest fibre fraction a yarn may reach [-] (0.9069, hexagonal)")
+    p.add_argument("--spreading", type=float, default=0.0, metavar="S",
+                   help="with --compaction: a yarn pressed to r of its volume widens by r^-S into the room beside "
+                   "it, and the fabric is solved and pressed again until the widths settle (0: widths kept, the "
+                   "default; 1: sections keep their area; README, Compaction)")
     p.set_defaults(run=commands.solve)
 
 

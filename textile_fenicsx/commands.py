@@ -174,6 +174,8 @@ def _compaction(args) -> dict:
         if args.vf is not None:
             raise TextileError("--vf needs --compaction K (the yarns' compaction law) to press the fabric to a fibre "
                                "volume fraction")
+        if args.spreading:
+            raise TextileError("--spreading needs --compaction K: the yarns spread only where they are pressed")
         return {"mould": args.mould}
     thickness = args.mould if isinstance(args.mould, float) else None
     if thickness is None and args.vf is None:
@@ -181,7 +183,7 @@ def _compaction(args) -> dict:
     if thickness is not None and args.vf is not None:
         raise TextileError("--compaction takes one target: --mould T or --vf V, not both")
     return {"mould": None, "compaction": CompactionTarget(args.compaction, thickness, args.vf, args.max_packing,
-                                                          args.compaction_steps)}
+                                                          args.compaction_steps, args.spreading)}
 
 
 def solve(args) -> int:

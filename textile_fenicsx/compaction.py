@@ -45,13 +45,16 @@ log = logging.getLogger(__name__)
 class CompactionTarget:
     """How far to press the fabric. modulus: the yarns' Van Wyk constant k E_f [N/mm^2 = MPa];
     thickness: the platens' final distance [mm], or vf: the fabric's fibre volume fraction at the
-    end [-] (one of the two); phi_max: the maximum packing [-]; steps: the platens' steps [-]."""
+    end [-] (one of the two); phi_max: the maximum packing [-]; steps: the platens' steps [-];
+    spreading: the width spreading exponent s [-] (spreading.py: a yarn pressed to r of its volume
+    widens by r^(-s) into the room beside it; 0, the default, keeps the widths, 1 the sections' areas)."""
 
     modulus: float
     thickness: float | None = None
     vf: float | None = None
     phi_max: float = HEXAGONAL
     steps: int = 4
+    spreading: float = 0.0
 
     def __post_init__(self):
         check_positive("compaction modulus", self.modulus)
@@ -64,6 +67,8 @@ class CompactionTarget:
                                f"{self.phi_max:.4g}, got {self.vf:g}")
         if not (isinstance(self.steps, int) and 1 <= self.steps <= 100):
             raise TextileError(f"compaction steps must be a whole number from 1 to 100, got {self.steps!r}")
+        if not (isinstance(self.spreading, (int, float)) and 0 <= self.spreading <= 1):
+            raise TextileError(f"compaction spreading exponent must lie between 0 and 1, got {self.spreading!r}")
 
 
 @dataclass

@@ -113,7 +113,8 @@ def metrics_document(run) -> dict:
         "compaction": None if run.compaction is None else {
             "target_mm": run.compaction.target, "thickness_mm": run.compaction.thickness[-1],
             "pressure_MPa": run.compaction.pressure[-1], "densest_yarn_vf": max(run.compaction.densest),
-            "stopped": run.compaction.reason, "settings": asdict(run.settings.compaction)},
+            "stopped": run.compaction.reason, "settings": asdict(run.settings.compaction),
+            "width_factors": run.spreading},
         "ranks": run.comm.size, "versions": versions(), "units": "mm, mm^3",
     }
 
