@@ -117,6 +117,7 @@ def test_a_loose_plain_weave_reaches_vf_half_only_by_spreading():
     # beyond the maximum packing (the sweep's three loose fabrics fail so, docs/sweep.md)
     kept = _loose_pressed(0.0)
     assert "beyond the maximum packing" in kept.compaction.reason and not kept.verdict["passed"]
+    assert "let the yarns spread: --spreading S" in kept.compaction.reason
     # spreading as the section's area is kept (s = 1), the yarns widen to their room and reach it
     alone = _loose_pressed(1.0, MPI.COMM_SELF)
     spread = _loose_pressed(1.0)

@@ -154,7 +154,8 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
                 curve.reason = (f"step {k} of {target.steps} ({h:.4g} mm, Vf {curve.fibre_volume / (area * h):.3f}) "
                                 f"is beyond the maximum packing {target.phi_max:.4g} of the compaction law: packed to "
                                 f"it, the yarns stacked at ({x:.3f}, {y:.3f}) mm are still {least:.4g} mm thick (give "
-                                "a thicker mould or a lower fibre volume fraction)")
+                                "a thicker mould or a lower fibre volume fraction"
+                                + (", or let the yarns spread: --spreading S)" if target.spreading == 0 else ")"))
                 log.warning("compaction: %s", curve.reason)
                 break
             step_mould = Mould(mid - h / 2, mid + h / 2)

@@ -137,8 +137,10 @@ class Run:
         again = "".join(f"; meshed again at {self.settings.mesh.seed:g} mm, the run at {r['seed']:g} mm "
                         f"{'reached the step cap' if 'reached its cap' in r['failures'][0] else 'overlapped'} "
                         f"({r['time_s']:.1f} s)" for r in self.remeshed[-1:])
-        return (f"{self.textile.name}: {check}; {volume}{thickness}; {s['dofs']} dofs, {s['iterations']} Newton "
-                f"steps, {self.times.get('total', 0.0):.1f} s{again}")
+        spread = (f"; yarns spread to {min(self.spreading):.3f}-{max(self.spreading):.3f} x their width"
+                  if self.spreading else "")
+        return (f"{self.textile.name}: {check}; {volume}{thickness}{spread}; {s['dofs']} dofs, {s['iterations']} "
+                f"Newton steps, {self.times.get('total', 0.0):.1f} s{again}")
 
     @property
     def comm(self) -> MPI.Comm:
