@@ -20,7 +20,7 @@ from mpi4py import MPI
 import dolfinx
 from textile_fenicsx import limits, memory
 from textile_fenicsx.errors import GeometryError, TextileError
-from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, to_dolfinx
+from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, snap_to_sides, to_dolfinx
 from textile_fenicsx.meshes.footprints import footprint_area, footprint_outlines, snap_to_neighbours
 from textile_fenicsx.meshes.periodic_sides import outlines_on_sides
 from textile_fenicsx.meshes.regions import fresh_start, gmsh_session, region_mesh
@@ -231,6 +231,8 @@ def _mesh_on_root(textile: Textile | None, cell: Cell, options: MeshOptions,
             arrays = (x, cells, tags)
             stats.update(nodes=int(len(x)), triangles=int(len(cells)), regions=len(coverage),
                          tiled=[tiling.nx, tiling.ny])
+        x, cells, tags = arrays
+        arrays = (snap_to_sides(cell, x), cells, tags)
         if cell.periodic:
             arrays = ghost_strip(cell, *arrays)
         return arrays, coverage, stats

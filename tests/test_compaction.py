@@ -349,6 +349,24 @@ def test_two_plies_nest_when_moved_by_half_a_spacing_and_not_in_register():
 
 
 @pytest.mark.mpi
+def test_a_ply_whose_yarn_runs_along_the_cells_side_is_corrected():
+    # a loose plain weave (1.2 mm yarns at 2 mm) over itself moved by (1, 1) mm: the second ply's
+    # warp runs along y = 4, the cell's side. gmsh put side nodes up to 2e-14 mm off it, the
+    # warp's centreline there lay outside its plate by more than DOLFINx's collision tolerance,
+    # and the correction stopped ("lies outside its meshed footprint"). Side nodes are now on it
+    from textile_fenicsx.meshes.projected import projected_mesh
+    from textile_fenicsx.plies import stack
+
+    plies = stack(build("plain", spacing=2.0, width=1.2, height=0.4), 2, [(0, 0), (1.0, 1.0)])
+    x = projected_mesh(plies, MeshOptions(0.5)).mesh.geometry.x
+    for axis in (0, 1):
+        near = np.abs(x[:, axis] - np.round(x[:, axis] / 4) * 4)  # the sides 0 and 4 (and the strip's 8)
+        assert np.all((near == 0) | (near > 1e-9)), near[(near > 0) & (near <= 1e-9)]
+    r = run(plies, Settings(MeshOptions(0.5)))
+    assert r.verdict["passed"], r.verdict["failures"]
+
+
+@pytest.mark.mpi
 def test_texgens_own_stack_of_plies_nests_through_the_contact_solve(reference_dir):
     # TexGen's CTextileLayered (plain_layered.tg3: two plies of plain.tg3, the second moved by
     # (1.0, 0.5) mm and dropped by NestLayers, interpenetrating) is read as a stack of 2 plies and
