@@ -157,11 +157,12 @@ class Rounds:
     """The widths' fixed point f = g(f), per yarn: g the factors a round pressed at widths f asks
     for (`factors`). The first step is g itself; the next ones are secant steps on h = g(f) - f,
     kept inside the bracket of widths where h changed sign (bisected where a step leaves it) and
-    within [1, room]. A plain iteration crept to the loose plain weave's widths by 0.6 of the way
-    a round; and where the target is reachable only from some width on, h jumps there (a round
-    that stops short asks for more, one that reaches the target for less), so the fixed point is
-    that edge, which the bracket closes on. Settled when the widths a round asks for, or the
-    bracket, are within ROUND_TOLERANCE."""
+    within [1, room] (a step beyond the room, where no width yet asked for less, goes to it). A
+    plain iteration crept to the loose plain weave's widths by 0.6 of the way a round; and where
+    the target is reachable only from some width on, h jumps there (a round that stops short asks
+    for more, one that reaches the target for less), so the fixed point is that edge, which the
+    bracket closes on. Settled when the widths a round asks for, or the bracket, are within
+    ROUND_TOLERANCE."""
 
     def __init__(self, rooms: np.ndarray):
         self.rooms = np.maximum(rooms, 1.0)
@@ -169,6 +170,7 @@ class Rounds:
         self.asked: list[np.ndarray] = []
         self.low: np.ndarray = np.ones(len(rooms))
         self.high: np.ndarray = self.rooms.copy()
+        self.bracketed = np.zeros(len(rooms), bool)  # high is a width that asked for less, not the room
 
     def next(self, asked: np.ndarray) -> tuple[np.ndarray, float]:
         """The widths for the next round, and how far the last round's are from settled [-]."""
@@ -176,14 +178,16 @@ class Rounds:
         h = asked - f
         self.low = np.where(h > 0, np.maximum(self.low, f), self.low)
         self.high = np.where(h < 0, np.minimum(self.high, f), self.high)
+        self.bracketed |= h < 0
         guess: np.ndarray = asked
         if self.asked:
             f0 = self.widths[-2]
             slope = h - (self.asked[-1] - f0)
             with np.errstate(divide="ignore", invalid="ignore"):
                 guess = np.where(np.abs(slope) > 1e-9, f - h * (f - f0) / slope, asked)
-        inside = (guess > self.low) & (guess <= self.high)  # the room itself may be the fixed point
-        guess = np.where(inside, guess, (self.low + self.high) / 2)
+        inside = (guess > self.low) & (guess <= self.high)
+        beyond_room = (guess > self.high) & ~self.bracketed  # the room itself may be the fixed point
+        guess = np.where(inside, guess, np.where(beyond_room, self.high, (self.low + self.high) / 2))
         self.asked.append(asked)
         self.widths.append(np.asarray(np.clip(guess, 1.0, self.rooms), float))
         change = min(float(np.max(np.abs(asked / f - 1))), float(np.max(self.high / self.low - 1)))
