@@ -155,3 +155,26 @@ def test_spreading_input_errors_exit_2(tmp_path):
     bad = cli("--compaction", 50, "--vf", 0.5, "--spreading", 1.5)
     assert bad.returncode == 2 and "spreading exponent must lie between 0 and 1, got 1.5" in bad.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.serial
+def test_a_round_that_fails_ends_the_rounds_and_the_last_good_one_is_kept(monkeypatch):
+    # the first run (widths kept) stops short of Vf 0.5; the spread fabric's run then fails: the
+    # rounds end, and the Run returned is the first, with its widths (none spread) and its reason
+    from textile_fenicsx import pipeline
+    from textile_fenicsx.errors import SolverError
+
+    real, calls = pipeline._remeshed, []
+
+    def failing_after_first(*args, **kwargs):
+        calls.append(args[0])
+        if len(calls) > 1:
+            raise SolverError("the energy is not convex (made to fail here)")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "_remeshed", failing_after_first)
+    r = _loose_pressed(1.0)
+    assert len(calls) == 2  # the model, then the spread model
+    assert min(y.section.sections()[0].width for y in calls[1].yarns) > 1.2 * 1.2  # spread by 1.3 (r = 0.77)
+    assert r.textile is calls[0] and r.spreading == [1.0] * 4
+    assert "beyond the maximum packing" in r.compaction.reason
