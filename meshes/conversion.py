@@ -16,7 +16,7 @@ import dolfinx
 from textile_fenicsx.errors import GeometryError
 from textile_fenicsx.textile import Cell
 
-__all__ = ["GHOST", "ghost_strip", "snap_to_sides", "to_dolfinx"]
+__all__ = ["GHOST", "ghost_strip", "to_dolfinx"]
 
 # Cell tags of the ghost strip: a copy of region k's cells beyond the right/top sides has tag k + GHOST.
 GHOST = 10_000_000
@@ -42,20 +42,6 @@ def to_dolfinx(comm: MPI.Comm, arrays: tuple | list | None,
     tags = dolfinx.mesh.meshtags_from_entities(msh, 2, adj, local_values.astype(np.int32))
     tags.name = "covering_set"
     return msh, tags
-
-
-def snap_to_sides(cell: Cell, x: np.ndarray) -> np.ndarray:
-    """The nodes within 1e-9 of the cell's size of one of its sides put exactly on it. gmsh leaves
-    side nodes where region edges meet a side up to 1e-14 mm off it (2.5e-15 and 2.1e-14 on a loose
-    plain weave's second ply): a point on that side, a yarn's centreline along it, then lay outside
-    the mesh by more than DOLFINx's collision tolerance, and the correction found no plate there."""
-    x0, x1, y0, y1 = cell.bounds
-    tol = 1e-9 * max(cell.lx, cell.ly)
-    x = x.copy()
-    for axis, side in ((0, x0), (0, x1), (1, y0), (1, y1)):
-        on = np.abs(x[:, axis] - side) < tol
-        x[on, axis] = side
-    return x
 
 
 def ghost_strip(cell: Cell, x: np.ndarray, cells: np.ndarray,

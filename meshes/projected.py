@@ -20,9 +20,9 @@ from mpi4py import MPI
 import dolfinx
 from textile_fenicsx import limits, memory
 from textile_fenicsx.errors import GeometryError, TextileError
-from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, snap_to_sides, to_dolfinx
+from textile_fenicsx.meshes.conversion import GHOST, ghost_strip, to_dolfinx
 from textile_fenicsx.meshes.footprints import footprint_area, footprint_outlines, snap_to_neighbours
-from textile_fenicsx.meshes.periodic_sides import outlines_on_sides
+from textile_fenicsx.meshes.periodic_sides import outlines_on_sides, snap_to_sides
 from textile_fenicsx.meshes.regions import fresh_start, gmsh_session, region_mesh
 from textile_fenicsx.meshes.tiling import tile_arrays
 from textile_fenicsx.textile import Cell, Textile
@@ -47,6 +47,8 @@ SNAP = (2.0, 4.0)
 # whim, and the two sides' curves then do not pair. TexGen's orthogonal weave at seed 0.25 mm has
 # its binders' edges 0.0125 mm inside its y sides, and the tolerance is seed / 20 = 0.0125 mm
 SIDE_SNAP = 2.0
+# Mesh nodes this close to a cell side, over the cell's size, are put exactly on it (_mesh_on_root).
+SIDE_NODES = 1e-9
 
 
 
@@ -231,8 +233,11 @@ def _mesh_on_root(textile: Textile | None, cell: Cell, options: MeshOptions,
             arrays = (x, cells, tags)
             stats.update(nodes=int(len(x)), triangles=int(len(cells)), regions=len(coverage),
                          tiled=[tiling.nx, tiling.ny])
+        # side nodes exactly on the sides: gmsh left some up to 2e-14 mm off, and a yarn whose
+        # centreline runs along a side (a loose ply moved by half a spacing) was then outside its
+        # own plate for DOLFINx's point search
         x, cells, tags = arrays
-        arrays = (snap_to_sides(cell, x), cells, tags)
+        arrays = (snap_to_sides(x, cell, SIDE_NODES * max(cell.lx, cell.ly)), cells, tags)
         if cell.periodic:
             arrays = ghost_strip(cell, *arrays)
         return arrays, coverage, stats
