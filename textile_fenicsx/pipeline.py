@@ -27,7 +27,7 @@ from textile_fenicsx.metrics import yarn_fibre_fractions
 from textile_fenicsx.slopes import slope_thickness
 from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, Solution, SolverOptions, solve_problem
 from textile_fenicsx.solver.flattening import law_thickness
-from textile_fenicsx.spreading import MAX_ROUNDS, ROUND_TOLERANCE, Rounds, factors, room, widen
+from textile_fenicsx.spreading import spread
 from textile_fenicsx.textile import Textile
 
 __all__ = ["Run", "Settings", "run"]
@@ -201,61 +201,7 @@ def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.
     result = _remeshed(textile, settings, comm, on_stage)
     if settings.compaction is None or settings.compaction.spreading == 0:
         return result
-    return _spread(result, textile, settings, comm, on_stage)
-
-
-def _spread(result: Run, textile: Textile, settings: Settings, comm: MPI.Comm,
-            on_stage: Callable[[str], None] | None) -> Run:
-    """The rounds of width spreading (spreading.py) after the first run, at the model's widths.
-    The Run returned is the last round's, or where that one stopped short of the target, the
-    last that reached it."""
-    target = settings.compaction
-    assert target is not None
-    rooms, areas = room(textile), yarn_fibre_areas(textile)
-    rounds = Rounds(rooms)
-    widths, spent = rounds.widths[0], result.times["total"]
-    reached: tuple | None = None  # the last round whose compaction reached its target: (round, widths, run)
-    for k in range(1, MAX_ROUNDS + 1):
-        curve = result.compaction
-        if result.volume_ratio is None or curve is None:  # nothing was pressed: nothing spreads
-            break
-        if curve.reason is None:
-            reached = (k, widths, result)
-        # each yarn's thickness over its model's: its plate's volume ratio over the spread's 1/f of height,
-        # and where the compaction stopped short, scaled by the target over the last thickness reached
-        # (the flattening the target asks: else a round only repeats the widths at which the last stopped)
-        reach = 1.0 if curve.reason is None else curve.target / curve.thickness[-1]
-        thinning = reach * np.asarray(result.volume_ratio) / widths
-        asked = factors(thinning, target.spreading, rooms)
-        new, change = rounds.next(asked)
-        log.info("spreading: round %d at width factors %.4f-%.4f pressed the yarns to %.3f-%.3f of their model's "
-                 "thickness, which asks for %.4f-%.4f (room %.4f at least): %.2f %% apart", k, widths.min(),
-                 widths.max(), thinning.min(), thinning.max(), asked.min(), asked.max(), rooms.min(), 100 * change)
-        if change <= ROUND_TOLERANCE:
-            break
-        if k == MAX_ROUNDS:
-            log.warning("spreading: after %d rounds the widths are still %.2f %% from those the last round asks "
-                        "for", MAX_ROUNDS, 100 * change)
-            break
-        start = time.perf_counter()
-        try:
-            again = _remeshed(widen(textile, new, areas), settings, comm, on_stage)
-        except (TextileError, SolverError, MeshError) as e:
-            why = str(e)
-        else:
-            why = "" if again.converged else again.solution.reason
-        spent += time.perf_counter() - start
-        if why:  # the spread fabric could not be solved: the rounds end here
-            log.warning("spreading: round %d at width factors %.4f-%.4f failed (%s)", k + 1, new.min(), new.max(), why)
-            break
-        widths, result = new, again
-    if reached is not None and result.compaction is not None and result.compaction.reason is not None:
-        log.warning("spreading: the last round stopped short of the target; round %d, which reached it, is kept",
-                    reached[0])
-        _, widths, result = reached
-    result.spreading = [float(f) for f in widths]
-    result.times["total"] = spent
-    return result
+    return spread(result, textile, settings.compaction, lambda model: _remeshed(model, settings, comm, on_stage))
 
 
 def _remeshed(textile: Textile, settings: Settings, comm: MPI.Comm,

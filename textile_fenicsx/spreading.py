@@ -21,17 +21,28 @@ to the widths' fixed point) end when the widths a round asks for are within ROUN
 those it was pressed at.
 """
 
+import logging
+import time
+from collections.abc import Callable
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import brentq
 
+from textile_fenicsx.errors import MeshError, SolverError, TextileError
 from textile_fenicsx.fibres import Fibres
 from textile_fenicsx.sections import Ellipse, Flat, Hybrid, Lenticular, Polygon, PowerEllipse, Section
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn_sections import ConstantSection, NodeSections, PositionSections
 
-__all__ = ["MAX_ROUNDS", "ROOM_MARGIN", "ROUND_TOLERANCE", "Rounds", "factors", "room", "widen"]
+if TYPE_CHECKING:  # the rounds are runs; pipeline imports this module
+    from textile_fenicsx.compaction import CompactionTarget
+    from textile_fenicsx.pipeline import Run
+
+__all__ = ["MAX_ROUNDS", "ROOM_MARGIN", "ROUND_TOLERANCE", "Rounds", "factors", "room", "spread", "widen"]
+
+log = logging.getLogger(__name__)
 
 # The rounds (each a whole run: mesh, solve, compaction) end when no yarn's width factor moves by
 # more than ROUND_TOLERANCE [-] and the compaction reached its target, or after MAX_ROUNDS.
@@ -192,3 +203,57 @@ class Rounds:
         self.widths.append(np.asarray(np.clip(guess, 1.0, self.rooms), float))
         change = min(float(np.max(np.abs(asked / f - 1))), float(np.max(self.high / self.low - 1)))
         return self.widths[-1], change
+
+
+def spread(result: "Run", textile: Textile, target: "CompactionTarget", solve: Callable[[Textile], "Run"]) -> "Run":
+    """The rounds (module docstring) after `result`, the run of the model as given: solve(model)
+    runs a spread model (pipeline: meshed again where it fails, Settings.remesh). The Run returned
+    is the last round's, or where that one stopped short of the target, the last that reached it;
+    its `spreading` holds the widths (collective: every rank takes the same steps)."""
+    from textile_fenicsx.compaction import yarn_fibre_areas
+
+    rooms, areas = room(textile), yarn_fibre_areas(textile)
+    rounds = Rounds(rooms)
+    widths, spent = rounds.widths[0], result.times["total"]
+    reached: tuple | None = None  # the last round whose compaction reached its target: (round, widths, run)
+    for k in range(1, MAX_ROUNDS + 1):
+        curve = result.compaction
+        if result.volume_ratio is None or curve is None:  # nothing was pressed: nothing spreads
+            break
+        if curve.reason is None:
+            reached = (k, widths, result)
+        # each yarn's thickness over its model's: its plate's volume ratio over the spread's 1/f of height,
+        # and where the compaction stopped short, scaled by the target over the last thickness reached
+        # (the flattening the target asks: else a round only repeats the widths at which the last stopped)
+        reach = 1.0 if curve.reason is None else curve.target / curve.thickness[-1]
+        thinning = reach * np.asarray(result.volume_ratio) / widths
+        asked = factors(thinning, target.spreading, rooms)
+        new, change = rounds.next(asked)
+        log.info("spreading: round %d at width factors %.4f-%.4f pressed the yarns to %.3f-%.3f of their model's "
+                 "thickness, which asks for %.4f-%.4f (room %.4f at least): %.2f %% apart", k, widths.min(),
+                 widths.max(), thinning.min(), thinning.max(), asked.min(), asked.max(), rooms.min(), 100 * change)
+        if change <= ROUND_TOLERANCE:
+            break
+        if k == MAX_ROUNDS:
+            log.warning("spreading: after %d rounds the widths are still %.2f %% from those the last round asks "
+                        "for", MAX_ROUNDS, 100 * change)
+            break
+        start = time.perf_counter()
+        try:
+            again = solve(widen(textile, new, areas))
+        except (TextileError, SolverError, MeshError) as e:
+            why = str(e)
+        else:
+            why = "" if again.converged else again.solution.reason
+        spent += time.perf_counter() - start
+        if why:  # the spread fabric could not be solved: the rounds end here
+            log.warning("spreading: round %d at width factors %.4f-%.4f failed (%s)", k + 1, new.min(), new.max(), why)
+            break
+        widths, result = new, again
+    if reached is not None and result.compaction is not None and result.compaction.reason is not None:
+        log.warning("spreading: the last round stopped short of the target; round %d, which reached it, is kept",
+                    reached[0])
+        _, widths, result = reached
+    result.spreading = [float(f) for f in widths]
+    result.times["total"] = spent
+    return result
