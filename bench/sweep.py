@@ -82,9 +82,8 @@ def run_case(name: str, seed: float = 0.5, timeout: float = 900, ranks: int = 1,
                           meshed_at=m["mesh"]["seed"])  # the seed of the run kept (Settings.remesh)
         if (out / "compaction.json").is_file():
             curve = json.loads((out / "compaction.json").read_text())
-            widths = m["compaction"]["width_factors"] if metrics.is_file() else None
-            record.update(width_factors=widths)
-            record.update(pressure=curve["pressure"][-1], relaxed=curve["thickness"][0], pressed=curve["thickness"][-1],
+            record.update(width_factors=m["compaction"]["width_factors"] if metrics.is_file() else None,
+                          pressure=curve["pressure"][-1], relaxed=curve["thickness"][0], pressed=curve["thickness"][-1],
                           densest=max(curve["densest"]), compaction_reason=curve["reason"],
                           compaction_newton_steps=sum(curve["iterations"]), imbalance=max(curve["imbalance"]))
         if proc.returncode != 0:

@@ -40,12 +40,12 @@ if TYPE_CHECKING:  # the rounds are runs; pipeline imports this module
     from textile_fenicsx.compaction import CompactionTarget
     from textile_fenicsx.pipeline import Run
 
-__all__ = ["MAX_ROUNDS", "ROOM_MARGIN", "ROUND_TOLERANCE", "Rounds", "factors", "room", "spread", "widen"]
+__all__ = ["MAX_ROUNDS", "ROOM_MARGIN", "ROUND_TOLERANCE", "Rounds", "room", "spread", "widen"]
 
 log = logging.getLogger(__name__)
 
-# The rounds (each a whole run: mesh, solve, compaction) end when no yarn's width factor moves by
-# more than ROUND_TOLERANCE [-] and the compaction reached its target, or after MAX_ROUNDS.
+# The rounds (each a whole run: mesh, solve, compaction) end when the widths a round asks for, or
+# the bracket on them, are within ROUND_TOLERANCE [-] (Rounds), or after MAX_ROUNDS.
 ROUND_TOLERANCE = 0.01
 MAX_ROUNDS = 6
 
@@ -73,10 +73,10 @@ def _widened_section(section: Section, f: float) -> Section:
     if isinstance(section, Lenticular):  # circular arcs stretched are not circular: the height that keeps the area
         lens = section
 
-        def spread(h: float) -> Lenticular:
+        def lens_of(h: float) -> Lenticular:
             return replace(lens, width=lens.width * f, height=h, distortion=lens.distortion * h / lens.height)
 
-        return spread(brentq(lambda h: spread(h).area() - lens.area(), lens.height / f**2, lens.height, xtol=1e-15))
+        return lens_of(brentq(lambda h: lens_of(h).area() - lens.area(), lens.height / f**2, lens.height, xtol=1e-15))
     assert isinstance(section, (Ellipse, PowerEllipse)), section
     return replace(section, width=section.width * f, height=section.height / f)
 
@@ -97,7 +97,7 @@ def widen(textile: Textile, factors: np.ndarray, fibre_areas: list[float]) -> Te
     yarns = [replace(y, section=_widened_sections(y.section, float(f)),
                      fibres=y.fibres if y.fibres is not None and y.fibres.fibre_area() else Fibres(area=a))
              for y, f, a in zip(textile.yarns, factors, fibre_areas)]
-    return replace(textile, yarns=yarns, name=textile.name)
+    return replace(textile, yarns=yarns)
 
 
 def _samples(textile: Textile, i: int):
@@ -130,25 +130,27 @@ def room(textile: Textile) -> np.ndarray:
     out = np.full(len(data), np.inf)
     for i, (p, t, n, ext, z) in enumerate(data):
         for j, (q, tq, nq, extq, zq) in enumerate(data):
+            # what does not depend on the periodic image: the samples' spacing along j, which pairs
+            # of samples run parallel at heights that overlap, and j's extent along i's normal (its
+            # own side may point either way)
             step = np.max(np.linalg.norm(np.diff(q[:, :2], axis=0), axis=1), initial=0.0)
+            zi, zj = p[:, 2:3] + z[:, None, :], q[None, :, 2:3] + zq[None, :, :]
+            level = (np.abs(t @ tq.T) >= cos_parallel) & \
+                (np.minimum(zi[..., 1], zj[..., 1]) > np.maximum(zi[..., 0], zj[..., 0]))
+            if not np.any(level):
+                continue
+            sign = np.sign(n @ nq.T)
+            lo_j = np.where(sign > 0, extq[None, :, 0], -extq[None, :, 1])
+            hi_j = np.where(sign > 0, extq[None, :, 1], -extq[None, :, 0])
             for shift in shifts:
                 if i == j and not np.any(shift):
                     continue
                 d = q[None, :, :2] + shift - p[:, None, :2]  # (Mi, Mj, 2)
                 along = np.einsum("ik,ijk->ij", t, d)
                 across = np.einsum("ik,ijk->ij", n, d)
-                parallel = np.abs(t @ tq.T) >= cos_parallel
-                # heights at the two samples: the two sections overlap in z
-                zi = p[:, 2:3] + z[:, None, :]
-                zj = q[None, :, 2:3] + zq[None, :, :]
-                stacked = (np.minimum(zi[..., 1], zj[..., 1]) > np.maximum(zi[..., 0], zj[..., 0]))
-                beside = parallel & stacked & (np.abs(along) <= step)
+                beside = level & (np.abs(along) <= step)
                 if not np.any(beside):
                     continue
-                # yarn j's extent along yarn i's normal (its own side may point either way)
-                sign = np.sign(n @ nq.T)
-                lo_j = np.where(sign > 0, extq[None, :, 0], -extq[None, :, 1])
-                hi_j = np.where(sign > 0, extq[None, :, 1], -extq[None, :, 0])
                 # j to the +n side: i's top edge ext[:,1] meets j's low edge across + lo_j; else the other way
                 reach = np.where(across > 0, ext[:, 1:2] - lo_j, hi_j - ext[:, 0:1])
                 with np.errstate(divide="ignore", invalid="ignore"):
@@ -158,22 +160,16 @@ def room(textile: Textile) -> np.ndarray:
     return out * (1 - ROOM_MARGIN)
 
 
-def factors(thinning: np.ndarray, exponent: float, rooms: np.ndarray) -> np.ndarray:
-    """Each yarn's width factor over its model's [-]: r^(-s) for its thickness ratio r, at least
-    1, at most its room."""
-    return np.clip(np.asarray(thinning, float) ** (-exponent), 1.0, np.maximum(rooms, 1.0))
-
-
 class Rounds:
     """The widths' fixed point f = g(f), per yarn: g the factors a round pressed at widths f asks
-    for (`factors`). The first step is g itself; the next ones are secant steps on h = g(f) - f,
-    kept inside the bracket of widths where h changed sign (bisected where a step leaves it) and
-    within [1, room] (a step beyond the room, where no width yet asked for less, goes to it). A
-    plain iteration crept to the loose plain weave's widths by 0.6 of the way a round; and where
-    the target is reachable only from some width on, h jumps there (a round that stops short asks
-    for more, one that reaches the target for less), so the fixed point is that edge, which the
-    bracket closes on. Settled when the widths a round asks for, or the bracket, are within
-    ROUND_TOLERANCE."""
+    for (r^(-s), kept within [1, room] here). The first step is g itself; the next ones are
+    secant steps on h = g(f) - f, kept inside the bracket of widths where h changed sign (bisected
+    where a step leaves it) and within [1, room] (a step beyond the room, where no width yet asked
+    for less, goes to it). A plain iteration crept to the loose plain weave's widths by 0.6 of the
+    way a round; and where the target is reachable only from some width on, h jumps there (a round
+    that stops short asks for more, one that reaches the target for less), so the fixed point is
+    that edge, which the bracket closes on. Settled when the widths a round asks for, or the
+    bracket, are within ROUND_TOLERANCE."""
 
     def __init__(self, rooms: np.ndarray):
         self.rooms = np.maximum(rooms, 1.0)
@@ -227,8 +223,8 @@ def spread(result: "Run", textile: Textile, target: "CompactionTarget", solve: C
         # (the flattening the target asks: else a round only repeats the widths at which the last stopped)
         reach = 1.0 if curve.reason is None else curve.target / curve.thickness[-1]
         thinning = reach * np.asarray(result.volume_ratio) / widths
-        asked = factors(thinning, target.spreading, rooms)
-        new, change = rounds.next(asked)
+        new, change = rounds.next(thinning ** -target.spreading)
+        asked = rounds.asked[-1]
         log.info("spreading: round %d at width factors %.4f-%.4f pressed the yarns to %.3f-%.3f of their model's "
                  "thickness, which asks for %.4f-%.4f (room %.4f at least): %.2f %% apart", k, widths.min(),
                  widths.max(), thinning.min(), thinning.max(), asked.min(), asked.max(), rooms.min(), 100 * change)
