@@ -18,6 +18,7 @@ from textile_fenicsx.compaction import CompactionCurve, CompactionTarget, compac
 from textile_fenicsx.correct import CorrectionOptions, Flat, corrected_textile
 from textile_fenicsx.errors import MeshError, SolverError, TextileError, UnresolvedError
 from textile_fenicsx.fibres import Fibres
+from textile_fenicsx.leg_fit import fit_legs
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.memory import release_freed_memory
@@ -351,6 +352,9 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
         t = time.perf_counter()
         corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
                                       settings.correction.section_points, split, flats)
+        if split.any:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
+            corrected = fit_legs(corrected, sorted({c.yarn for c in split.crowns if not c.whole}),
+                                 settings.correction.section_points)
         if flats is not None:  # the fibres the compaction counted go with the flattened yarns
             corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
                                                   zip(corrected.yarns, yarn_fibre_areas(textile))])

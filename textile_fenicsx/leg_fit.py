@@ -1,0 +1,234 @@
+"""Binder legs fitted into the gap beside them, after the solve (DESIGN.md 7b; issue 27, item 4).
+
+A binder's leg is not a plate (legs.py): the plates move yarns vertically, and a leg thicker than
+the gap between the weft columns it passes through, or off its middle, stays in its neighbours.
+So after the correction every stretch of a yarn steeper than FIT_SLOPE (a leg and the corners
+into its crowns) gets a small lateral problem of its own, with its neighbours held where the solve
+put them:
+
+- unknowns per station k: a_k, the path's offset along the section's up vector (in the plane of
+  the path's bend: horizontal on a vertical leg), and g_k, the section's squash: the section
+  becomes g_k times as thick along up and 1 / g_k times as wide, so its area (its fibres) is kept;
+- energy: sum_k (1 - g_k)^2 + KINK_WEIGHT sum_k ((a_{k-1} - 2 a_k + a_{k+1}) / h_k)^2, h_k the
+  section's height: a section squashed by x weighs as much as a lateral kink of the path of x / 10
+  section heights over one station;
+- lateral contact: along +-up from the path, the distances d+_k, d-_k to the nearest other
+  yarn (probed at points across the width); a_k + g_k top_k <= d+_k - margin and
+  -a_k + g_k bottom_k <= d-_k - margin, with FIT_MARGIN of the section's height as margin;
+  a = 0 and g = 1 at the stretch's ends (it joins the unchanged crowns); g >= FIT_LEAST.
+
+A convex quadratic programme per stretch (scipy's SLSQP), solved only where a station's section
+reaches into a neighbour. What it does not do: the neighbours do not move (the weft columns do not
+move apart in the plane), and the widened section is not held against the yarns beside it across
+its width (the check measures that).
+"""
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import minimize
+
+from textile_fenicsx.correct import SECTION_TOL, sparse_sections
+from textile_fenicsx.textile import Textile
+from textile_fenicsx.yarn import Yarn
+
+__all__ = ["FIT_SLOPE", "fit_legs"]
+
+log = logging.getLogger(__name__)
+
+# stations whose path is steeper than this (|dz| / |dxy|, 30 degrees) belong to a leg's stretch:
+# the leg (legs.STEEP, 72 degrees) and the corners where it turns into its crowns
+FIT_SLOPE = np.tan(np.radians(30.0))
+# the gap kept to a neighbour, in section heights
+FIT_MARGIN = 0.03
+# the thinnest a section may be squashed to (its width grows to 1 / FIT_LEAST)
+FIT_LEAST = 0.4
+# probes: distances along +-up per station, and points across the section's width
+PROBE_STEPS = 60
+PROBE_ACROSS = (-0.7, 0.0, 0.7)
+# the weight of the path's lateral kinks against the sections' squash: a squash by x weighs as much
+# as a kink of x / 10 section heights over one station. Lighter kinks (1 or 10) let the path swerve
+# between the weft columns' edges and fold: on the wide-binder orthogonal weave the overlap left was
+# 0.045 mm deep and the binders' swept-back volume doubled (0.74 -> 1.4 %); at 100 and 1000 none is
+# left and the folds are the solve's own (0.76 and 0.72 %)
+KINK_WEIGHT = 100.0
+# probe points between two stations (the path is a cubic through them, and bends between them)
+PROBES_BETWEEN = 3
+
+
+def _runs(mask: np.ndarray) -> list[np.ndarray]:
+    """The maximal runs of consecutive True entries of a cyclic mask (index arrays, in order)."""
+    n = len(mask)
+    if mask.all() or not mask.any():
+        return [np.arange(n)] if mask.all() else []
+    start = int(np.argmin(mask))  # a False entry: no run wraps past it
+    order = (start + np.arange(n)) % n
+    runs, current = [], []
+    for k in order:
+        if mask[k]:
+            current.append(k)
+        elif current:
+            runs.append(np.array(current))
+            current = []
+    if current:
+        runs.append(np.array(current))
+    return runs
+
+
+def _reaches(textile: Textile, i: int, pos, up, side, sec) -> bool:
+    """Does a section (thickened by the margin on each side) reach into another yarn than i?"""
+    u, v = sec[..., 0], sec[..., 1] * (1 + 2 * FIT_MARGIN)
+    points = pos[:, None] + u[..., None] * side[:, None] + v[..., None] * up[:, None]
+    inside = textile.inside(points.reshape(-1, 3))
+    inside[:, i] = False
+    return bool(inside.any())
+
+
+def _first_hits(textile: Textile, i: int, rays: list) -> list[np.ndarray]:
+    """For each bundle of rays (origins (M, P, 3), directions (M, 3), lengths (M,)), per probe
+    point m how far [mm] one may go along its direction from its P origins before a point of
+    another yarn than i (the least over the origins), up to its length: every point of every
+    bundle in one query (a query's cost is mostly per yarn, not per point)."""
+    steps = np.linspace(0.0, 1.0, PROBE_STEPS + 1)[1:]
+    points = [o[:, :, None] + (steps[None, :, None] * length[:, None, None])[:, None] * d[:, None, None]
+              for o, d, length in rays]  # (M, P, R, 3) each
+    inside = textile.inside(np.concatenate([p.reshape(-1, 3) for p in points]))
+    inside[:, i] = False
+    hit: np.ndarray = np.asarray(inside.any(axis=1))
+    out, start = [], 0
+    for p, (_, _, length) in zip(points, rays):
+        h = hit[start:start + p[..., 0].size].reshape(p.shape[:3])
+        start += p[..., 0].size
+        first = np.where(h.any(axis=2), steps[h.argmax(axis=2)], 1.0)  # (M, P), in lengths
+        out.append(first.min(axis=1) * length)
+    return out
+
+
+def _walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ...]:
+    """Per probe point (pos, up, side, its section sec), the room [mm] from the path to the nearest
+    other yarn: along +up and -up (from points across the section's width; up to 1.5 section
+    heights), and along +side and -side (from the section's edges, at heights across it; up to the
+    width a squash to FIT_LEAST asks)."""
+    height = np.ptp(sec[..., 1], axis=1)
+    right, left, top = sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1), sec[..., 1].max(axis=1)
+    across = np.array(PROBE_ACROSS)
+    rays = []
+    for sign in (1.0, -1.0):
+        origins = pos[:, None] + (across[None, :] * 0.5 * (right + left)[:, None])[..., None] * side[:, None]
+        rays.append((origins, sign * up, 1.5 * height))
+    for sign, edge in ((1.0, right), (-1.0, left)):
+        origins = (pos[:, None] + (sign * edge)[:, None, None] * side[:, None]
+                   + (across[None, :] * 0.5 * top[:, None])[..., None] * up[:, None])
+        rays.append((origins, sign * side, edge * (1 / FIT_LEAST - 1) + FIT_MARGIN * height))
+    dp, dm, sp, sm = _first_hits(textile, i, rays)
+    return dp, dm, right + sp, left + sm
+
+
+def _fit(W: np.ndarray, sec: np.ndarray, walls: tuple, station_height) -> tuple[np.ndarray, np.ndarray] | None:
+    """Offsets a and squashes g at the m stations of one stretch (the lateral problem above), held
+    at the Q probe points between them (W, (Q, m): each point's weights on the stations; sec: its
+    section; walls: its room, _walls), or None where no fit exists or the programme fails."""
+    m = W.shape[1]
+    top, bottom = sec[..., 1].max(axis=1), -sec[..., 1].min(axis=1)
+    right, left = sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1)
+    height = top + bottom
+    dp, dm, sp, sm = walls
+    room_p, room_m = dp - FIT_MARGIN * height, dm - FIT_MARGIN * height
+    # the width grows as 1 / g: g no less than the room across the width allows
+    least = np.maximum(FIT_LEAST, np.maximum(right / np.maximum(sp - FIT_MARGIN * height, 1e-12),
+                                             left / np.maximum(sm - FIT_MARGIN * height, 1e-12)))
+    if np.any(room_p + room_m < least * (top + bottom)) or np.any(least > 1):
+        return None
+    D = (np.diag(np.full(m, -2.0)) + np.diag(np.ones(m - 1), 1) + np.diag(np.ones(m - 1), -1)) * \
+        (np.sqrt(KINK_WEIGHT) / station_height[:, None])
+
+    def energy(x):
+        return float(np.sum((1 - x[m:]) ** 2) + np.sum((D @ x[:m]) ** 2))
+
+    def gradient(x):
+        return np.concatenate((2 * D.T @ (D @ x[:m]), -2 * (1 - x[m:])))
+
+    A = np.vstack((np.hstack((-W, -top[:, None] * W)), np.hstack((W, -bottom[:, None] * W)),
+                   np.hstack((np.zeros_like(W), W))))
+    b = np.concatenate((room_p, room_m, -least))
+    constraints = {"type": "ineq", "fun": lambda x: A @ x + b, "jac": lambda x: A}
+    x0 = np.concatenate((np.zeros(m), np.full(m, 1.0)))
+    result = minimize(energy, x0, jac=gradient, constraints=[constraints], method="SLSQP",
+                      bounds=[(None, None)] * m + [(FIT_LEAST, 1.0)] * m, options={"maxiter": 500, "ftol": 1e-12})
+    if not result.success or np.min(A @ result.x + b) < -1e-9 * np.max(height):
+        return None
+    return result.x[:m], result.x[m:]
+
+
+def _probes(run: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters of the probe points of a stretch (its stations and PROBES_BETWEEN points
+    between each two) and their weights on its stations (linear in the parameter)."""
+    m = len(run)
+    t = np.arange(PROBES_BETWEEN + 1) / (PROBES_BETWEEN + 1)
+    k = np.repeat(np.arange(m - 1), len(t))
+    tt = np.tile(t, m - 1)
+    s = np.concatenate((run[k] + tt, [run[-1]]))
+    W = np.zeros((len(s), m))
+    W[np.arange(len(k)), k] = 1 - tt
+    W[np.arange(len(k)), k + 1] = tt
+    W[-1, -1] = 1.0
+    return np.where(s > n, s - n, s), W
+
+
+def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, float]:
+    """Yarn i with its legs' stretches fitted (or as it was); stations changed and the least g."""
+    yarn = textile.yarns[i]
+    n = len(yarn.nodes) - (1 if yarn.periodic else 0)  # a periodic yarn's last node repeats its first
+    s = np.arange(n, dtype=float)
+    pos, tan, up, side = yarn.frames(s)
+    steep = np.abs(tan[:, 2]) > FIT_SLOPE * np.linalg.norm(tan[:, :2], axis=1)
+    if not steep.any() or steep.all():
+        return yarn, 0, 1.0
+    sec = yarn.section_points(s, n_points)
+    a, g = np.zeros(n), np.ones(n)
+    for run in _runs(steep):
+        unwrapped = run + n * np.concatenate(([0], np.cumsum(np.diff(run) < 0)))  # a run may wrap past n
+        q, W = _probes(unwrapped.astype(float), n)
+        qpos, _, qup, qside = yarn.frames(q)
+        qsec = yarn.section_points(q, n_points)
+        if not _reaches(textile, i, qpos, qup, qside, qsec):
+            continue
+        top, bottom = qsec[..., 1].max(axis=1), -qsec[..., 1].min(axis=1)
+        height = top + bottom
+        walls = _walls(textile, i, qpos, qup, qside, qsec)
+        reach = (top + FIT_MARGIN * height > walls[0]) | (bottom + FIT_MARGIN * height > walls[1])
+        if not reach.any():
+            continue
+        fit = _fit(W, qsec, walls, np.ptp(sec[run, :, 1], axis=1))
+        if fit is None:
+            c = int(np.argmax(reach))
+            log.warning("legs: %s's leg at (%.3f, %.3f, %.3f) mm cannot be fitted into the gap beside it (%.4f mm "
+                        "for a section %.4f mm thick, %.4f mm across its width for %.4f): left as it is",
+                        yarn.name, *qpos[c], walls[0][c] + walls[1][c], height[c], walls[2][c] + walls[3][c],
+                        np.ptp(qsec[c, :, 0]))
+            continue
+        a[run], g[run] = fit
+    changed = int(np.sum((np.abs(a) > 0) | (g < 1)))
+    if not changed:
+        return yarn, 0, 1.0
+    nodes = yarn.nodes.copy()
+    nodes[:n] = pos + a[:, None] * up
+    polys = np.stack((sec[..., 0] / g[:, None], sec[..., 1] * g[:, None]), axis=-1)
+    if yarn.periodic:
+        nodes[n] = nodes[0] + yarn.period
+        polys = np.concatenate((polys, polys[:1]))
+    tol = SECTION_TOL * float(np.min(np.ptp(polys[..., 1], axis=1)))
+    fitted = replace(yarn, nodes=nodes, section=sparse_sections(nodes, polys, yarn.periodic, tol))
+    return fitted, changed, float(g.min())
+
+
+def fit_legs(textile: Textile, yarns: list[int], n_points: int = 32) -> Textile:
+    """The corrected textile with the legs of `yarns` (those cut into crowns) fitted into their gaps."""
+    new = list(textile.yarns)
+    for i in yarns:
+        new[i], changed, least = _fitted_yarn(textile, i, n_points)
+        if changed:
+            log.info("legs: %s fitted into the gaps beside its legs at %d stations (sections squashed to %.3f of "
+                     "their thickness at most, areas kept)", textile.yarns[i].name, changed, least)
+    return replace(textile, yarns=new)
