@@ -12,15 +12,17 @@ put them:
 - energy: sum_k (1 - g_k)^2 + KINK_WEIGHT sum_k ((a_{k-1} - 2 a_k + a_{k+1}) / h_k)^2, h_k the
   section's height: a section squashed by x weighs as much as a lateral kink of the path of x / 10
   section heights over one station;
-- lateral contact: along +-up from the path, the distances d+_k, d-_k to the nearest other
-  yarn (probed at points across the width); a_k + g_k top_k <= d+_k - margin and
-  -a_k + g_k bottom_k <= d-_k - margin, with FIT_MARGIN of the section's height as margin;
-  a = 0 and g = 1 at the stretch's ends (it joins the unchanged crowns); g >= FIT_LEAST.
+- lateral contact, held at the stations and PROBES_BETWEEN points between each two (a and g
+  linear between them): along +-up from the path, the distances d+, d- to the nearest other yarn
+  (probed from points across the width); a + g top <= d+ - margin and -a + g bottom <= d- - margin,
+  with FIT_MARGIN of the section's height as margin; across the width, the widened section's edges
+  within the room beside them (right / g <= s+ - margin, left / g <= s- - margin: a lower bound on
+  g); g >= FIT_LEAST; a = 0 beyond the stretch's ends (it joins the unchanged crowns).
 
-A convex quadratic programme per stretch (scipy's SLSQP), solved only where a station's section
-reaches into a neighbour. What it does not do: the neighbours do not move (the weft columns do not
-move apart in the plane), and the widened section is not held against the yarns beside it across
-its width (the check measures that).
+A convex quadratic programme per stretch (scipy's SLSQP), solved only where a section (thickened by
+the margin) reaches into a neighbour; where none exists the stretch is left as it was, with a
+warning. What it does not do: the neighbours do not move (the weft columns do not move apart in the
+plane), and the fit does not feed back into the plates' solve.
 """
 
 import logging
