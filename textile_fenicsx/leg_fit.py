@@ -78,6 +78,11 @@ def _runs(mask: np.ndarray) -> list[np.ndarray]:
     return runs
 
 
+def _extents(sec: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per section (S, P, 2) in (side, up): how far it reaches up, down, right and left [mm]."""
+    return sec[..., 1].max(axis=1), -sec[..., 1].min(axis=1), sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1)
+
+
 def _reaches(textile: Textile, i: int, pos, up, side, sec) -> bool:
     """Does a section (thickened by the margin on each side) reach into another yarn than i?"""
     u, v = sec[..., 0], sec[..., 1] * (1 + 2 * FIT_MARGIN)
@@ -112,8 +117,8 @@ def _walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ..
     other yarn: along +up and -up (from points across the section's width; up to 1.5 section
     heights), and along +side and -side (from the section's edges, at heights across it; up to the
     width a squash to FIT_LEAST asks)."""
-    height = np.ptp(sec[..., 1], axis=1)
-    right, left, top = sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1), sec[..., 1].max(axis=1)
+    top, bottom, right, left = _extents(sec)
+    height = top + bottom
     across = np.array(PROBE_ACROSS)
     rays = []
     for sign in (1.0, -1.0):
@@ -132,8 +137,7 @@ def _fit(W: np.ndarray, sec: np.ndarray, walls: tuple, station_height) -> tuple[
     at the Q probe points between them (W, (Q, m): each point's weights on the stations; sec: its
     section; walls: its room, _walls), or None where no fit exists or the programme fails."""
     m = W.shape[1]
-    top, bottom = sec[..., 1].max(axis=1), -sec[..., 1].min(axis=1)
-    right, left = sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1)
+    top, bottom, right, left = _extents(sec)
     height = top + bottom
     dp, dm, sp, sm = walls
     room_p, room_m = dp - FIT_MARGIN * height, dm - FIT_MARGIN * height
@@ -196,7 +200,7 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, fl
         qsec = yarn.section_points(q, n_points)
         if not _reaches(textile, i, qpos, qup, qside, qsec):
             continue
-        top, bottom = qsec[..., 1].max(axis=1), -qsec[..., 1].min(axis=1)
+        top, bottom, _, _ = _extents(qsec)
         height = top + bottom
         walls = _walls(textile, i, qpos, qup, qside, qsec)
         reach = (top + FIT_MARGIN * height > walls[0]) | (bottom + FIT_MARGIN * height > walls[1])

@@ -317,15 +317,15 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
             else:
                 problem.destroy()
                 problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould)
-            solution = solve_problem(problem, start=first)
-            for _ in range(AUTO_MOULD_OPENINGS if settings.mould == "auto" else 0):
+            auto = settings.mould == "auto"  # its mould may open: the problem is kept to move its platens
+            solution = solve_problem(problem, start=first, keep=auto)
+            for _ in range(AUTO_MOULD_OPENINGS if auto else 0):
                 opened = _opened_mould(mould, solution, settings.solver)
                 if opened is None:
                     break
-                problem.destroy()
                 mould, stalled = opened, solution
-                problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould)
-                solution = solve_problem(problem, start=first)
+                problem.renew(settings.solver, mould)  # the platens move, as in a compaction's steps
+                solution = solve_problem(problem, start=first, keep=True)
                 solution.iterations += stalled.iterations  # every Newton step is counted
                 solution.history = stalled.history + solution.history
             solution.iterations += first.iterations
