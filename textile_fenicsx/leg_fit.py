@@ -35,7 +35,7 @@ from textile_fenicsx.correct import SECTION_TOL, sparse_sections
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn import Yarn
 
-__all__ = ["FIT_SLOPE", "fit_legs"]
+__all__ = ["FIT_SLOPE", "extents", "fit_legs", "probes", "runs", "walls"]
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ KINK_WEIGHT = 100.0
 PROBES_BETWEEN = 3
 
 
-def _runs(mask: np.ndarray) -> list[np.ndarray]:
+def runs(mask: np.ndarray) -> list[np.ndarray]:
     """The maximal runs of consecutive True entries of a cyclic mask (index arrays, in order)."""
     n = len(mask)
     if mask.all() or not mask.any():
@@ -78,7 +78,7 @@ def _runs(mask: np.ndarray) -> list[np.ndarray]:
     return runs
 
 
-def _extents(sec: np.ndarray) -> tuple[np.ndarray, ...]:
+def extents(sec: np.ndarray) -> tuple[np.ndarray, ...]:
     """Per section (S, P, 2) in (side, up): how far it reaches up, down, right and left [mm]."""
     return sec[..., 1].max(axis=1), -sec[..., 1].min(axis=1), sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1)
 
@@ -112,12 +112,12 @@ def _first_hits(textile: Textile, i: int, rays: list) -> list[np.ndarray]:
     return out
 
 
-def _walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ...]:
+def walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ...]:
     """Per probe point (pos, up, side, its section sec), the room [mm] from the path to the nearest
     other yarn: along +up and -up (from points across the section's width; up to 1.5 section
     heights), and along +side and -side (from the section's edges, at heights across it; up to the
     width a squash to FIT_LEAST asks)."""
-    top, bottom, right, left = _extents(sec)
+    top, bottom, right, left = extents(sec)
     height = top + bottom
     across = np.array(PROBE_ACROSS)
     rays = []
@@ -132,14 +132,14 @@ def _walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ..
     return dp, dm, right + sp, left + sm
 
 
-def _fit(W: np.ndarray, sec: np.ndarray, walls: tuple, station_height) -> tuple[np.ndarray, np.ndarray] | None:
+def _fit(W: np.ndarray, sec: np.ndarray, room: tuple, station_height) -> tuple[np.ndarray, np.ndarray] | None:
     """Offsets a and squashes g at the m stations of one stretch (the lateral problem above), held
     at the Q probe points between them (W, (Q, m): each point's weights on the stations; sec: its
-    section; walls: its room, _walls), or None where no fit exists or the programme fails."""
+    section; room: its room, walls()), or None where no fit exists or the programme fails."""
     m = W.shape[1]
-    top, bottom, right, left = _extents(sec)
+    top, bottom, right, left = extents(sec)
     height = top + bottom
-    dp, dm, sp, sm = walls
+    dp, dm, sp, sm = room
     room_p, room_m = dp - FIT_MARGIN * height, dm - FIT_MARGIN * height
     # the width grows as 1 / g: g no less than the room across the width allows
     least = np.maximum(FIT_LEAST, np.maximum(right / np.maximum(sp - FIT_MARGIN * height, 1e-12),
@@ -167,7 +167,7 @@ def _fit(W: np.ndarray, sec: np.ndarray, walls: tuple, station_height) -> tuple[
     return result.x[:m], result.x[m:]
 
 
-def _probes(run: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def probes(run: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Parameters of the probe points of a stretch (its stations and PROBES_BETWEEN points
     between each two) and their weights on its stations (linear in the parameter)."""
     m = len(run)
@@ -193,25 +193,25 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, fl
         return yarn, 0, 1.0
     sec = yarn.section_points(s, n_points)
     a, g = np.zeros(n), np.ones(n)
-    for run in _runs(steep):
+    for run in runs(steep):
         unwrapped = run + n * np.concatenate(([0], np.cumsum(np.diff(run) < 0)))  # a run may wrap past n
-        q, W = _probes(unwrapped.astype(float), n)
+        q, W = probes(unwrapped.astype(float), n)
         qpos, _, qup, qside = yarn.frames(q)
         qsec = yarn.section_points(q, n_points)
         if not _reaches(textile, i, qpos, qup, qside, qsec):
             continue
-        top, bottom, _, _ = _extents(qsec)
+        top, bottom, _, _ = extents(qsec)
         height = top + bottom
-        walls = _walls(textile, i, qpos, qup, qside, qsec)
-        reach = (top + FIT_MARGIN * height > walls[0]) | (bottom + FIT_MARGIN * height > walls[1])
+        room = walls(textile, i, qpos, qup, qside, qsec)
+        reach = (top + FIT_MARGIN * height > room[0]) | (bottom + FIT_MARGIN * height > room[1])
         if not reach.any():
             continue
-        fit = _fit(W, qsec, walls, np.ptp(sec[run, :, 1], axis=1))
+        fit = _fit(W, qsec, room, np.ptp(sec[run, :, 1], axis=1))
         if fit is None:
             c = int(np.argmax(reach))
             log.warning("legs: %s's leg at (%.3f, %.3f, %.3f) mm cannot be fitted into the gap beside it (%.4f mm "
                         "for a section %.4f mm thick, %.4f mm across its width for %.4f): left as it is",
-                        yarn.name, *qpos[c], walls[0][c] + walls[1][c], height[c], walls[2][c] + walls[3][c],
+                        yarn.name, *qpos[c], room[0][c] + room[1][c], height[c], room[2][c] + room[3][c],
                         np.ptp(qsec[c, :, 0]))
             continue
         a[run], g[run] = fit

@@ -14,6 +14,7 @@ import numpy as np
 from mpi4py import MPI
 
 import dolfinx
+from textile_fenicsx.bend_fit import open_bends
 from textile_fenicsx.compaction import CompactionCurve, CompactionTarget, compact, yarn_fibre_areas
 from textile_fenicsx.correct import CorrectionOptions, Flat, corrected_textile
 from textile_fenicsx.errors import MeshError, SolverError, TextileError, UnresolvedError
@@ -353,8 +354,9 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
         corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
                                       settings.correction.section_points, split, flats)
         if split.any:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
-            corrected = fit_legs(corrected, sorted({c.yarn for c in split.crowns if not c.whole}),
-                                 settings.correction.section_points)
+            binders = sorted({c.yarn for c in split.crowns if not c.whole})
+            corrected = fit_legs(corrected, binders, settings.correction.section_points)
+            corrected = open_bends(corrected, binders, settings.correction.section_points)
         if flats is not None:  # the fibres the compaction counted go with the flattened yarns
             corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
                                                   zip(corrected.yarns, yarn_fibre_areas(textile))])

@@ -25,7 +25,7 @@ fibre than the maximum packing, and a compaction that stopped short of its targe
 numbers and the worst place), and the tolerances used.
 """
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -137,12 +137,16 @@ class Tube:
     """A yarn's surface over its master nodes as the metrics see it (its resolution's stations and
     section points), measured: volume [mm^3] enclosed (the divergence theorem, the end sections
     closing it), length [mm] of the path through the stations, folded [mm^3]: the volume its
-    sections sweep backwards, at [mm] the path point of the worst fold (None for none)."""
+    sections sweep backwards, at [mm] the path point of the worst fold (None for none); s: the
+    parameters along the path where it was measured and back [mm^3]: the volume swept backwards
+    between each two (bend_fit.py opens the bends where it is)."""
 
     volume: float
     length: float
     folded: float
     at: tuple | None
+    s: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    back: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
 
     @property
     def per_length(self) -> float:
@@ -180,7 +184,7 @@ def tube(yarn, resolution) -> Tube:
     back = (wedge * _backwards(np.broadcast_to(apex, edge.shape), edge)).sum(axis=1)
     m = int(np.argmax(back))
     length = float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1)))
-    return Tube(volume, length, float(back.sum()), tuple(map(float, pos[m])) if back[m] > 0 else None)
+    return Tube(volume, length, float(back.sum()), tuple(map(float, pos[m])) if back[m] > 0 else None, s, back)
 
 
 def _backwards(apex: np.ndarray, edge: np.ndarray) -> np.ndarray:
