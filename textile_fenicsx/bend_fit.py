@@ -45,8 +45,17 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize
 
-from textile_fenicsx.correct import SECTION_TOL, sparse_sections
-from textile_fenicsx.leg_fit import FIT_MARGIN, PROBE_STEPS, extents, probes, runs, walls
+from textile_fenicsx.leg_fit import (
+    FIT_MARGIN,
+    PROBE_STEPS,
+    extents,
+    probes,
+    rebuilt,
+    runs,
+    second_difference,
+    unwrapped,
+    walls,
+)
 from textile_fenicsx.metrics import coverage_depth
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.verify import Tolerances, tube
@@ -86,14 +95,7 @@ def _bends(points: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, ...]:
 
 def _with_offsets(yarn: Yarn, n: int, pos, up, sec, a) -> Yarn:
     """The yarn through its stations moved by a along their up vectors, with the same sections."""
-    nodes = yarn.nodes.copy()
-    nodes[:n] = pos + a[:, None] * up
-    polys = sec
-    if yarn.periodic:
-        nodes[n] = nodes[0] + yarn.period
-        polys = np.concatenate((sec, sec[:1]))
-    tol = SECTION_TOL * float(np.min(np.ptp(polys[..., 1], axis=1)))
-    return replace(yarn, nodes=nodes, section=sparse_sections(nodes, polys, yarn.periodic, tol))
+    return rebuilt(yarn, n, pos + a[:, None] * up, sec)
 
 
 def _grid(yarn: Yarn, q: np.ndarray, n_points: int, step: float) -> np.ndarray:
@@ -181,19 +183,19 @@ def _opened_run(textile, i, yarn, run, n, n_points, a, stations, chain, tol) -> 
     """The offsets a with one stretch (run) opened, or None where it cannot be (the programme
     above; the move scaled back where the turned sections would reach into another yarn)."""
     pos, up, sec, reach = stations
-    unwrapped = run + n * np.concatenate(([0], np.cumsum(np.diff(run) < 0)))
-    ext = np.concatenate(([unwrapped[0] - 1], unwrapped, [unwrapped[-1] + 1]))
-    q, W = probes(unwrapped.astype(float), n)  # the stations and points between them
+    stretch = unwrapped(run, n)
+    ext = np.concatenate(([stretch[0] - 1], stretch, [stretch[-1] + 1]))
+    q, W = probes(stretch.astype(float), n)  # the stations and points between them
     qpos, _, qup, qside = yarn.frames(q)
     qsec = yarn.section_points(q, n_points)
-    top, bottom = extents(qsec)[:2]
-    probe = walls(textile, i, qpos, qup, qside, qsec)
-    keep = (1.5 / PROBE_STEPS + FIT_MARGIN) * (top + bottom)  # a probe step and the legs' margin
-    room = np.concatenate((np.maximum(probe[0] - keep - top, 0.0), np.maximum(probe[1] - keep - bottom, 0.0)))
+    qtop, qbottom = extents(qsec)[:2]
+    along_up = walls(textile, i, qpos, qup, qside, qsec, sideways=False)
+    keep = (1.5 / PROBE_STEPS + FIT_MARGIN) * (qtop + qbottom)  # a probe step and the legs' margin
+    room = np.concatenate((np.maximum(along_up[0] - keep - qtop, 0.0), np.maximum(along_up[1] - keep - qbottom, 0.0)))
     A = np.vstack((-W, W))
     m = len(run)
     height = np.ptp(sec[run, :, 1], axis=1)
-    kink = (np.diag(np.full(m, -2.0)) + np.diag(np.ones(m - 1), 1) + np.diag(np.ones(m - 1), -1)) / height[:, None]
+    kink = second_difference(m) / height[:, None]
     top, bottom = reach[0][run], reach[1][run]
     grid = _grid(yarn, q, n_points, GUARD_STEP * float(min(textile.cell.lx, textile.cell.ly)))
     before = _depths(textile, i, yarn, grid)

@@ -35,7 +35,7 @@ from textile_fenicsx.correct import SECTION_TOL, sparse_sections
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn import Yarn
 
-__all__ = ["FIT_SLOPE", "extents", "fit_legs", "probes", "runs", "walls"]
+__all__ = ["FIT_SLOPE", "extents", "fit_legs", "probes", "rebuilt", "runs", "second_difference", "unwrapped", "walls"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +78,28 @@ def runs(mask: np.ndarray) -> list[np.ndarray]:
     return runs
 
 
+def unwrapped(run: np.ndarray, n: int) -> np.ndarray:
+    """The stations of a run (in order, it may wrap past n) counted on: n, n + 1, ... after the wrap."""
+    return run + n * np.concatenate(([0], np.cumsum(np.diff(run) < 0)))
+
+
+def second_difference(m: int) -> np.ndarray:
+    """The (m, m) matrix of second differences over m stations, zero beyond both ends."""
+    return np.diag(np.full(m, -2.0)) + np.diag(np.ones(m - 1), 1) + np.diag(np.ones(m - 1), -1)
+
+
+def rebuilt(yarn: Yarn, n: int, stations: np.ndarray, polys: np.ndarray) -> Yarn:
+    """The yarn through its n stations moved to `stations` (n, 3), with these section polygons
+    (n, P, 2) at them (a periodic yarn's last node and polygon repeat its first)."""
+    nodes = yarn.nodes.copy()
+    nodes[:n] = stations
+    if yarn.periodic:
+        nodes[n] = nodes[0] + yarn.period
+        polys = np.concatenate((polys, polys[:1]))
+    tol = SECTION_TOL * float(np.min(np.ptp(polys[..., 1], axis=1)))
+    return replace(yarn, nodes=nodes, section=sparse_sections(nodes, polys, yarn.periodic, tol))
+
+
 def extents(sec: np.ndarray) -> tuple[np.ndarray, ...]:
     """Per section (S, P, 2) in (side, up): how far it reaches up, down, right and left [mm]."""
     return sec[..., 1].max(axis=1), -sec[..., 1].min(axis=1), sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1)
@@ -112,11 +134,11 @@ def _first_hits(textile: Textile, i: int, rays: list) -> list[np.ndarray]:
     return out
 
 
-def walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ...]:
+def walls(textile: Textile, i: int, pos, up, side, sec, sideways: bool = True) -> tuple[np.ndarray, ...]:
     """Per probe point (pos, up, side, its section sec), the room [mm] from the path to the nearest
     other yarn: along +up and -up (from points across the section's width; up to 1.5 section
-    heights), and along +side and -side (from the section's edges, at heights across it; up to the
-    width a squash to FIT_LEAST asks)."""
+    heights), and with sideways along +side and -side (from the section's edges, at heights across
+    it; up to the width a squash to FIT_LEAST asks)."""
     top, bottom, right, left = extents(sec)
     height = top + bottom
     across = np.array(PROBE_ACROSS)
@@ -124,12 +146,12 @@ def walls(textile: Textile, i: int, pos, up, side, sec) -> tuple[np.ndarray, ...
     for sign in (1.0, -1.0):
         origins = pos[:, None] + (across[None, :] * 0.5 * (right + left)[:, None])[..., None] * side[:, None]
         rays.append((origins, sign * up, 1.5 * height))
-    for sign, edge in ((1.0, right), (-1.0, left)):
+    for sign, edge in ((1.0, right), (-1.0, left)) if sideways else ():
         origins = (pos[:, None] + (sign * edge)[:, None, None] * side[:, None]
                    + (across[None, :] * 0.5 * top[:, None])[..., None] * up[:, None])
         rays.append((origins, sign * side, edge * (1 / FIT_LEAST - 1) + FIT_MARGIN * height))
-    dp, dm, sp, sm = _first_hits(textile, i, rays)
-    return dp, dm, right + sp, left + sm
+    hits = _first_hits(textile, i, rays)
+    return tuple(hits[:2]) + ((right + hits[2], left + hits[3]) if sideways else ())
 
 
 def _fit(W: np.ndarray, sec: np.ndarray, room: tuple, station_height) -> tuple[np.ndarray, np.ndarray] | None:
@@ -146,8 +168,7 @@ def _fit(W: np.ndarray, sec: np.ndarray, room: tuple, station_height) -> tuple[n
                                              left / np.maximum(sm - FIT_MARGIN * height, 1e-12)))
     if np.any(room_p + room_m < least * (top + bottom)) or np.any(least > 1):
         return None
-    D = (np.diag(np.full(m, -2.0)) + np.diag(np.ones(m - 1), 1) + np.diag(np.ones(m - 1), -1)) * \
-        (np.sqrt(KINK_WEIGHT) / station_height[:, None])
+    D = second_difference(m) * (np.sqrt(KINK_WEIGHT) / station_height[:, None])
 
     def energy(x):
         return float(np.sum((1 - x[m:]) ** 2) + np.sum((D @ x[:m]) ** 2))
@@ -194,8 +215,7 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, fl
     sec = yarn.section_points(s, n_points)
     a, g = np.zeros(n), np.ones(n)
     for run in runs(steep):
-        unwrapped = run + n * np.concatenate(([0], np.cumsum(np.diff(run) < 0)))  # a run may wrap past n
-        q, W = probes(unwrapped.astype(float), n)
+        q, W = probes(unwrapped(run, n).astype(float), n)
         qpos, _, qup, qside = yarn.frames(q)
         qsec = yarn.section_points(q, n_points)
         if not _reaches(textile, i, qpos, qup, qside, qsec):
@@ -218,14 +238,8 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, fl
     changed = int(np.sum((np.abs(a) > 0) | (g < 1)))
     if not changed:
         return yarn, 0, 1.0
-    nodes = yarn.nodes.copy()
-    nodes[:n] = pos + a[:, None] * up
     polys = np.stack((sec[..., 0] / g[:, None], sec[..., 1] * g[:, None]), axis=-1)
-    if yarn.periodic:
-        nodes[n] = nodes[0] + yarn.period
-        polys = np.concatenate((polys, polys[:1]))
-    tol = SECTION_TOL * float(np.min(np.ptp(polys[..., 1], axis=1)))
-    fitted = replace(yarn, nodes=nodes, section=sparse_sections(nodes, polys, yarn.periodic, tol))
+    fitted = rebuilt(yarn, n, pos + a[:, None] * up, polys)
     return fitted, changed, float(g.min())
 
 
