@@ -52,6 +52,21 @@ def test_a_leg_thicker_than_its_gap_is_squashed_to_fit_it_with_its_area_kept():
 
 
 @pytest.mark.serial
+def test_a_fitted_leg_keeps_the_solves_least_gap_to_its_neighbours():
+    # solve --min-gap G: the tet mesh asks for G between yarns, more than the fit's own margin
+    # (FIT_MARGIN H = 0.009 mm); the leg is squashed until G is kept on each side, and the probes
+    # see a wall up to a step late, so the fit keeps a step more: GAP - 2 (G + step), to a step
+    gap = 0.03
+    fitted = fit_legs(binder_through_a_gap(), [2], gap=gap).yarns[2]
+    k = int(np.argmin(np.abs(fitted.nodes[:, 0] - 1.0) + np.abs(fitted.nodes[:, 2])))
+    section = fitted.section_points(np.array([float(k)]), 64)[0]
+    step = 1.5 * H / PROBE_STEPS
+    thickness = np.ptp(section[:, 1])
+    assert thickness <= GAP - 2 * gap
+    assert thickness == pytest.approx(GAP - 2 * (gap + step), abs=2 * step)
+
+
+@pytest.mark.serial
 def test_a_leg_that_fits_its_gap_is_left_as_it_is():
     textile = binder_through_a_gap()
     narrow = Yarn(textile.yarns[2].nodes, ConstantSection(Ellipse(0.6, 0.15)), "cubic",

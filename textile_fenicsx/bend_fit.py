@@ -20,7 +20,8 @@ either side, by a small problem of its own:
   BEND_RATIO times the mean chord; no chord shorter than BEND_SPACING of what it was (the cubic
   through the stations kinks where two nearly meet); and along +-up, at the stations and three
   points between each two, no nearer the other yarns than leg_fit's probes allow less a probe
-  step and leg_fit's margin (a crown in contact may stay or leave, never go in).
+  step and leg_fit's margin (leg_fit.margin: the solve's least gap where that is more; a crown in
+  contact may stay or leave, never go in).
 
 scipy's SLSQP solves it, in units of the section's height. A stretch it cannot open is tried with
 BEND_PAD more stations either side, BEND_WIDENINGS times, and is then left as it was (the check
@@ -46,9 +47,9 @@ import numpy as np
 from scipy.optimize import minimize
 
 from textile_fenicsx.leg_fit import (
-    FIT_MARGIN,
     PROBE_STEPS,
     extents,
+    margin,
     probes,
     rebuilt,
     runs,
@@ -119,7 +120,7 @@ def _depths(textile: Textile, i: int, yarn: Yarn, grid: np.ndarray) -> np.ndarra
     return coverage_depth(len(grid), col.point, col.bottom, col.top)
 
 
-def _opened_yarn(textile: Textile, i: int, n_points: int, tol: float) -> tuple[Yarn, int, int]:
+def _opened_yarn(textile: Textile, i: int, n_points: int, tol: float, gap: float) -> tuple[Yarn, int, int]:
     """Yarn i with its tight bends opened (or as it was); stations moved and stretches left tight."""
     yarn = textile.yarns[i]
     n = len(yarn.nodes) - (1 if yarn.periodic else 0)
@@ -158,7 +159,7 @@ def _opened_yarn(textile: Textile, i: int, n_points: int, tol: float) -> tuple[Y
     for run in runs(mask):
         for wider in range(BEND_WIDENINGS + 1):  # a bend too tight for its stretch gets a longer one
             stretch = _widened(run, wider * BEND_PAD, n, yarn.periodic)
-            opened = _opened_run(textile, i, yarn, stretch, n, n_points, a, (pos, up, sec, reach), chain, tol)
+            opened = _opened_run(textile, i, yarn, stretch, n, n_points, a, (pos, up, sec, reach), chain, (tol, gap))
             if opened is not None:
                 a = opened
                 break
@@ -179,10 +180,11 @@ def _widened(run: np.ndarray, by: int, n: int, periodic: bool) -> np.ndarray:
     return np.arange(max(run[0] - by, 1), min(run[-1] + by, n - 2) + 1)
 
 
-def _opened_run(textile, i, yarn, run, n, n_points, a, stations, chain, tol) -> np.ndarray | None:
+def _opened_run(textile, i, yarn, run, n, n_points, a, stations, chain, limits) -> np.ndarray | None:
     """The offsets a with one stretch (run) opened, or None where it cannot be (the programme
     above; the move scaled back where the turned sections would reach into another yarn)."""
     pos, up, sec, reach = stations
+    tol, gap = limits  # the guard's depth [mm]; the solve's least gap [mm]
     stretch = unwrapped(run, n)
     ext = np.concatenate(([stretch[0] - 1], stretch, [stretch[-1] + 1]))
     q, W = probes(stretch.astype(float), n)  # the stations and points between them
@@ -190,7 +192,7 @@ def _opened_run(textile, i, yarn, run, n, n_points, a, stations, chain, tol) -> 
     qsec = yarn.section_points(q, n_points)
     qtop, qbottom = extents(qsec)[:2]
     along_up = walls(textile, i, qpos, qup, qside, qsec, sideways=False)
-    keep = (1.5 / PROBE_STEPS + FIT_MARGIN) * (qtop + qbottom)  # a probe step and the legs' margin
+    keep = (1.5 / PROBE_STEPS + margin(qtop + qbottom, gap)) * (qtop + qbottom)  # a probe step and the legs' margin
     room = np.concatenate((np.maximum(along_up[0] - keep - qtop, 0.0), np.maximum(along_up[1] - keep - qbottom, 0.0)))
     A = np.vstack((-W, W))
     m = len(run)
@@ -232,12 +234,13 @@ def _opened_run(textile, i, yarn, run, n, n_points, a, stations, chain, tol) -> 
     return None
 
 
-def open_bends(textile: Textile, yarns: list[int], n_points: int = 32) -> Textile:
-    """The textile with the tight bends of `yarns` (those cut into crowns) opened."""
+def open_bends(textile: Textile, yarns: list[int], n_points: int = 32, gap: float = 0.0) -> Textile:
+    """The textile with the tight bends of `yarns` (those cut into crowns) opened, never nearer
+    than `gap` [mm] (the solve's least gap) to the other yarns where they were not already."""
     new = list(textile.yarns)
     tol = REACH_TOL * min(s.height for y in textile.yarns for s in y.section.sections())
     for i in yarns:
-        new[i], moved, left = _opened_yarn(textile, i, n_points, tol)
+        new[i], moved, left = _opened_yarn(textile, i, n_points, tol, gap)
         if moved:
             log.info("bends: %s's path moved at %d stations where its sections would fold over", new[i].name, moved)
         if left:

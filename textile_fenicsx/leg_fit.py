@@ -15,7 +15,8 @@ put them:
 - lateral contact, held at the stations and PROBES_BETWEEN points between each two (a and g
   linear between them): along +-up from the path, the distances d+, d- to the nearest other yarn
   (probed from points across the width); a + g top <= d+ - margin and -a + g bottom <= d- - margin,
-  with FIT_MARGIN of the section's height as margin; across the width, the widened section's edges
+  with FIT_MARGIN of the section's height as margin (or the solve's least gap, SolverOptions.min_gap,
+  plus a probe step, where that is more: the tet mesh asks for it); across the width, the widened section's edges
   within the room beside them (right / g <= s+ - margin, left / g <= s- - margin: a lower bound on
   g); g >= FIT_LEAST; a = 0 beyond the stretch's ends (it joins the unchanged crowns).
 
@@ -35,7 +36,8 @@ from textile_fenicsx.correct import SECTION_TOL, sparse_sections
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn import Yarn
 
-__all__ = ["FIT_SLOPE", "extents", "fit_legs", "probes", "rebuilt", "runs", "second_difference", "unwrapped", "walls"]
+__all__ = ["FIT_SLOPE", "extents", "fit_legs", "margin", "probes", "rebuilt", "runs", "second_difference", "unwrapped",
+           "walls"]
 
 log = logging.getLogger(__name__)
 
@@ -100,14 +102,21 @@ def rebuilt(yarn: Yarn, n: int, stations: np.ndarray, polys: np.ndarray) -> Yarn
     return replace(yarn, nodes=nodes, section=sparse_sections(nodes, polys, yarn.periodic, tol))
 
 
+def margin(height: np.ndarray, gap: float) -> np.ndarray:
+    """The gap kept to a neighbour by a section `height` mm thick, in its heights: FIT_MARGIN, or the
+    solve's least gap `gap` [mm] and a probe step (the probes see a wall up to a step late)."""
+    return np.maximum(FIT_MARGIN, gap / height + 1.5 / PROBE_STEPS)
+
+
 def extents(sec: np.ndarray) -> tuple[np.ndarray, ...]:
     """Per section (S, P, 2) in (side, up): how far it reaches up, down, right and left [mm]."""
     return sec[..., 1].max(axis=1), -sec[..., 1].min(axis=1), sec[..., 0].max(axis=1), -sec[..., 0].min(axis=1)
 
 
-def _reaches(textile: Textile, i: int, pos, up, side, sec) -> bool:
+def _reaches(textile: Textile, i: int, pos, up, side, sec, gap: float) -> bool:
     """Does a section (thickened by the margin on each side) reach into another yarn than i?"""
-    u, v = sec[..., 0], sec[..., 1] * (1 + 2 * FIT_MARGIN)
+    height = np.ptp(sec[..., 1], axis=1)
+    u, v = sec[..., 0], sec[..., 1] * (1 + 2 * margin(height, gap))[:, None]
     points = pos[:, None] + u[..., None] * side[:, None] + v[..., None] * up[:, None]
     inside = textile.inside(points.reshape(-1, 3))
     inside[:, i] = False
@@ -134,11 +143,12 @@ def _first_hits(textile: Textile, i: int, rays: list) -> list[np.ndarray]:
     return out
 
 
-def walls(textile: Textile, i: int, pos, up, side, sec, sideways: bool = True) -> tuple[np.ndarray, ...]:
+def walls(textile: Textile, i: int, pos, up, side, sec, sideways: bool = True,
+          gap: float = 0.0) -> tuple[np.ndarray, ...]:
     """Per probe point (pos, up, side, its section sec), the room [mm] from the path to the nearest
     other yarn: along +up and -up (from points across the section's width; up to 1.5 section
     heights), and with sideways along +side and -side (from the section's edges, at heights across
-    it; up to the width a squash to FIT_LEAST asks)."""
+    it; up to the width a squash to FIT_LEAST asks, and the margin: `gap`, margin())."""
     top, bottom, right, left = extents(sec)
     height = top + bottom
     across = np.array(PROBE_ACROSS)
@@ -149,12 +159,13 @@ def walls(textile: Textile, i: int, pos, up, side, sec, sideways: bool = True) -
     for sign, edge in ((1.0, right), (-1.0, left)) if sideways else ():
         origins = (pos[:, None] + (sign * edge)[:, None, None] * side[:, None]
                    + (across[None, :] * 0.5 * top[:, None])[..., None] * up[:, None])
-        rays.append((origins, sign * side, edge * (1 / FIT_LEAST - 1) + FIT_MARGIN * height))
+        rays.append((origins, sign * side, edge * (1 / FIT_LEAST - 1) + margin(height, gap) * height))
     hits = _first_hits(textile, i, rays)
     return tuple(hits[:2]) + ((right + hits[2], left + hits[3]) if sideways else ())
 
 
-def _fit(W: np.ndarray, sec: np.ndarray, room: tuple, station_height) -> tuple[np.ndarray, np.ndarray] | None:
+def _fit(W: np.ndarray, sec: np.ndarray, room: tuple, station_height,
+         gap: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Offsets a and squashes g at the m stations of one stretch (the lateral problem above), held
     at the Q probe points between them (W, (Q, m): each point's weights on the stations; sec: its
     section; room: its room, walls()), or None where no fit exists or the programme fails."""
@@ -162,10 +173,10 @@ def _fit(W: np.ndarray, sec: np.ndarray, room: tuple, station_height) -> tuple[n
     top, bottom, right, left = extents(sec)
     height = top + bottom
     dp, dm, sp, sm = room
-    room_p, room_m = dp - FIT_MARGIN * height, dm - FIT_MARGIN * height
+    keep = margin(height, gap) * height
+    room_p, room_m = dp - keep, dm - keep
     # the width grows as 1 / g: g no less than the room across the width allows
-    least = np.maximum(FIT_LEAST, np.maximum(right / np.maximum(sp - FIT_MARGIN * height, 1e-12),
-                                             left / np.maximum(sm - FIT_MARGIN * height, 1e-12)))
+    least = np.maximum(FIT_LEAST, np.maximum(right / np.maximum(sp - keep, 1e-12), left / np.maximum(sm - keep, 1e-12)))
     if np.any(room_p + room_m < least * (top + bottom)) or np.any(least > 1):
         return None
     D = second_difference(m) * (np.sqrt(KINK_WEIGHT) / station_height[:, None])
@@ -203,7 +214,7 @@ def probes(run: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.where(s > n, s - n, s), W
 
 
-def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, float]:
+def _fitted_yarn(textile: Textile, i: int, n_points: int, gap: float) -> tuple[Yarn, int, float]:
     """Yarn i with its legs' stretches fitted (or as it was); stations changed and the least g."""
     yarn = textile.yarns[i]
     n = len(yarn.nodes) - (1 if yarn.periodic else 0)  # a periodic yarn's last node repeats its first
@@ -218,17 +229,24 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, fl
         q, W = probes(unwrapped(run, n).astype(float), n)
         qpos, _, qup, qside = yarn.frames(q)
         qsec = yarn.section_points(q, n_points)
-        if not _reaches(textile, i, qpos, qup, qside, qsec):
+        if not _reaches(textile, i, qpos, qup, qside, qsec, gap):
             continue
         top, bottom, _, _ = extents(qsec)
         height = top + bottom
-        room = walls(textile, i, qpos, qup, qside, qsec)
-        reach = (top + FIT_MARGIN * height > room[0]) | (bottom + FIT_MARGIN * height > room[1])
+        room = walls(textile, i, qpos, qup, qside, qsec, gap=gap)
+        keep = margin(height, gap) * height
+        reach = (top + keep > room[0]) | (bottom + keep > room[1])
         if not reach.any():
             continue
-        fit = _fit(W, qsec, room, np.ptp(sec[run, :, 1], axis=1))
+        fit = _fit(W, qsec, room, np.ptp(sec[run, :, 1], axis=1), gap)
+        c = int(np.argmax(reach))
+        if fit is None and gap > 0:  # too narrow for the solve's gap beside it: the fit's own margin
+            fit = _fit(W, qsec, room, np.ptp(sec[run, :, 1], axis=1), 0.0)
+            if fit is not None:
+                log.warning("legs: %s's leg at (%.3f, %.3f, %.3f) mm is fitted into its gap with less than the "
+                            "solve's least gap (%.4f mm) beside it: a tet mesh with that gap will refuse it",
+                            yarn.name, *qpos[c], gap)
         if fit is None:
-            c = int(np.argmax(reach))
             log.warning("legs: %s's leg at (%.3f, %.3f, %.3f) mm cannot be fitted into the gap beside it (%.4f mm "
                         "for a section %.4f mm thick, %.4f mm across its width for %.4f): left as it is",
                         yarn.name, *qpos[c], room[0][c] + room[1][c], height[c], room[2][c] + room[3][c],
@@ -243,11 +261,12 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int) -> tuple[Yarn, int, fl
     return fitted, changed, float(g.min())
 
 
-def fit_legs(textile: Textile, yarns: list[int], n_points: int = 32) -> Textile:
-    """The corrected textile with the legs of `yarns` (those cut into crowns) fitted into their gaps."""
+def fit_legs(textile: Textile, yarns: list[int], n_points: int = 32, gap: float = 0.0) -> Textile:
+    """The corrected textile with the legs of `yarns` (those cut into crowns) fitted into their gaps,
+    keeping at least `gap` [mm] (the solve's least gap) to their neighbours."""
     new = list(textile.yarns)
     for i in yarns:
-        new[i], changed, least = _fitted_yarn(textile, i, n_points)
+        new[i], changed, least = _fitted_yarn(textile, i, n_points, gap)
         if changed:
             log.info("legs: %s fitted into the gaps beside its legs at %d stations (sections squashed to %.3f of "
                      "their thickness at most, areas kept)", textile.yarns[i].name, changed, least)

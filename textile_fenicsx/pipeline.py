@@ -355,8 +355,9 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
                                       settings.correction.section_points, split, flats)
         if split.any:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
             binders = sorted({c.yarn for c in split.crowns if not c.whole})
-            corrected = fit_legs(corrected, binders, settings.correction.section_points)
-            corrected = open_bends(corrected, binders, settings.correction.section_points)
+            gap = settings.solver.min_gap  # the fits keep the gap the solve kept
+            corrected = fit_legs(corrected, binders, settings.correction.section_points, gap)
+            corrected = open_bends(corrected, binders, settings.correction.section_points, gap)
         if flats is not None:  # the fibres the compaction counted go with the flattened yarns
             corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
                                                   zip(corrected.yarns, yarn_fibre_areas(textile))])
