@@ -238,10 +238,11 @@ def _fitted_yarn(textile: Textile, i: int, n_points: int, gap: float) -> tuple[Y
         reach = (top + keep > room[0]) | (bottom + keep > room[1])
         if not reach.any():
             continue
-        fit = _fit(W, qsec, room, np.ptp(sec[run, :, 1], axis=1), gap)
+        station_height = np.ptp(sec[run, :, 1], axis=1)
+        fit = _fit(W, qsec, room, station_height, gap)
         c = int(np.argmax(reach))
         if fit is None and gap > 0:  # too narrow for the solve's gap beside it: the fit's own margin
-            fit = _fit(W, qsec, room, np.ptp(sec[run, :, 1], axis=1), 0.0)
+            fit = _fit(W, qsec, room, station_height, 0.0)
             if fit is not None:
                 log.warning("legs: %s's leg at (%.3f, %.3f, %.3f) mm is fitted into its gap with less than the "
                             "solve's least gap (%.4f mm) beside it: a tet mesh with that gap will refuse it",
