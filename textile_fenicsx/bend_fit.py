@@ -6,8 +6,9 @@ The plates place a yarn's surface by vertical offsets, so where a binder's crown
 edge of a weft (an ellipse 2.58 x 0.3 mm has an edge radius of 0.017 mm) and turns into its leg,
 its path turns as tightly as the weft's edge, and its 0.3 mm sections fold there.
 
-So after the legs are fitted, a yarn cut into crowns whose sections fold over (the check's own
-measure, verify.tube, more than FOLD_FLOOR of its volume) has its stations next to the folds where
+So after the legs are fitted, a yarn cut into crowns (or without its loops, loops.py) whose
+sections fold over (the check's own measure, verify.tube, more than FOLD_FLOOR of its volume) has
+its stations next to the folds where
 a section reaches, on the inside of the bend, more than BEND_RATIO of the bend's radius (the turn
 between the chords to its neighbours over their mean length) opened, with BEND_PAD stations
 either side, by a small problem of its own:

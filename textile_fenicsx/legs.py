@@ -15,10 +15,11 @@ displacements of its two crown ends, interpolated along the leg, and keep their 
 """
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from textile_fenicsx.loops import unlooped
 from textile_fenicsx.sections import Polygon
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn import NodeSections, Yarn
@@ -52,15 +53,23 @@ class Crown:
 @dataclass(frozen=True)
 class Split:
     """The plate model of a textile: `plate` (its yarns are the textile's, with steep ones cut into
-    crowns) and, per plate yarn, where it comes from."""
+    crowns) and, per plate yarn, where it comes from. `textile` is the one the plates were made
+    from: the model without the loops of the yarns `unlooped` (loops.py)."""
 
     textile: Textile
     plate: Textile
     crowns: tuple
+    unlooped: tuple = ()
 
     @property
     def any(self) -> bool:
         return any(not c.whole for c in self.crowns)
+
+    @property
+    def binders(self) -> list[int]:
+        """The yarns cut into crowns or without their loops: those whose corrected legs and bends
+        are fitted (leg_fit.py, bend_fit.py)."""
+        return sorted({c.yarn for c in self.crowns if not c.whole} | set(self.unlooped))
 
 
 def _path(yarn: Yarn, s: np.ndarray):
@@ -142,13 +151,15 @@ def split_steep(textile: Textile, spacing: float) -> Split:
 
 
 def plate_model(textile: Textile, seed: float) -> Split:
-    """The plates every command meshes (mesh, solve, the bench): the textile with its legs cut out
-    (split_steep, stations seed / 2 apart), the yarns so cut named in the log."""
+    """The plates every command meshes (mesh, solve, the bench): the textile without the loops of
+    its master nodes (loops.py) and with its legs cut out (split_steep, stations seed / 2 apart),
+    the yarns so cut named in the log."""
+    textile, looped = unlooped(textile)
     split = split_steep(textile, seed / 2)
     if split.any:
         log.info("legs: %s cut into crowns where steeper than %g or turning back", ", ".join(
             sorted({textile.yarns[c.yarn].name for c in split.crowns if not c.whole})), STEEP)
-    return split
+    return replace(split, unlooped=looped)
 
 
 def _clear_of_sides(textile: Textile, yarn: Yarn, s0: float, s1: float, margin: float) -> tuple[float, float]:

@@ -351,10 +351,11 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
     if solution.converged:
         begin("correct")
         t = time.perf_counter()
-        corrected = corrected_textile(textile, solution.w, settings.correction.station_spacing(settings.mesh.seed),
+        corrected = corrected_textile(split.textile, solution.w,  # (the model the plates were made from)
+                                      settings.correction.station_spacing(settings.mesh.seed),
                                       settings.correction.section_points, split, flats)
-        if split.any:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
-            binders = sorted({c.yarn for c in split.crowns if not c.whole})
+        binders = split.binders
+        if binders:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
             gap = settings.solver.min_gap  # the fits keep the gap the solve kept
             corrected = fit_legs(corrected, binders, settings.correction.section_points, gap)
             corrected = open_bends(corrected, binders, settings.correction.section_points, gap)
