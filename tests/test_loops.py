@@ -23,13 +23,16 @@ def along(yarn: Yarn) -> np.ndarray:
 
 
 @pytest.mark.serial
-def test_a_layer_to_layer_binders_crossed_nodes_become_one_node_at_its_column():
+def test_a_layer_to_layer_binders_crossed_nodes_become_one_node_at_its_column(caplog):
     # TexGen writes the wide binder's leg nodes past each other, x 5.64 then 5.56 mm, both at its
     # height there (z 1.45): one node at their mean, 5.60, the weft column's gap; the path is then
     # 2 x (0.08 + 0.08) mm shorter less what the Bezier's turns took, and runs forward everywhere
     t = load_model(FABRICS / "l2l_w2f3_b3_0011_binder1.0x0.3.tg3")
-    u, which = unlooped(t)
+    with caplog.at_level("INFO", logger="textile_fenicsx.loops"):
+        u, which = unlooped(t)
     assert which == (2, 3, 4, 7, 8, 9)
+    assert "loops: yarn 9 runs back in plan: master nodes 10, 11 step 0.08 mm back: one node at (5.6, 9.4, 1.45) mm" \
+        in caplog.text
     for i, (y0, y) in enumerate(zip(t.yarns, u.yarns)):
         if i not in which:
             assert y is y0

@@ -87,8 +87,9 @@ def unlooped_yarn(yarn: Yarn) -> tuple[Yarn, list[str]]:
         if b - a > 1 and float(np.max(np.ptp(p, axis=0))) < MERGE_TOL:  # a step back at one height
             nodes.append(p.mean(axis=0))
             members.append(list(order[a:b]))
+            x, y, z = nodes[-1] - (yarn.period if order[a] < start else 0.0)
             moved.append(f"master nodes {', '.join(map(str, order[a:b]))} step {np.ptp(t[a:b]):.3g} mm back: "
-                         f"one node at {mean:.4g} mm along it")
+                         f"one node at ({x:.4g}, {y:.4g}, {z:.4g}) mm")
         else:  # (a leg leaning back stays: it is no plate, and leg_fit places it)
             nodes += list(lapped[a:b])
             members += [[k] for k in order[a:b]]
