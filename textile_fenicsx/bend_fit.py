@@ -8,10 +8,9 @@ its path turns as tightly as the weft's edge, and its 0.3 mm sections fold there
 
 So after the legs are fitted, a yarn cut into crowns (or without its loops, loops.py) whose
 sections fold over (the check's own measure, verify.tube, more than FOLD_FLOOR of its volume) has
-its stations next to the folds where
-a section reaches, on the inside of the bend, more than BEND_RATIO of the bend's radius (the turn
-between the chords to its neighbours over their mean length) opened, with BEND_PAD stations
-either side, by a small problem of its own:
+its stations next to the folds where a section reaches, on the inside of the bend, more than
+BEND_RATIO of the bend's radius (the turn between the chords to its neighbours over their mean
+length) opened, with BEND_PAD stations either side, by a small problem of its own:
 
 - unknowns: a_k, the path's offset along the section's up vector (as in leg_fit);
 - energy: sum_k ((a_{k-1} - 2 a_k + a_{k+1}) / h_k)^2, the kink of the change (h_k the section's

@@ -25,6 +25,7 @@ import logging
 from dataclasses import replace
 
 import numpy as np
+from scipy.optimize import isotonic_regression
 
 from textile_fenicsx.textile import Textile
 from textile_fenicsx.yarn import NodeSections, Yarn
@@ -38,14 +39,10 @@ MERGE_TOL = 1e-3
 
 
 def _pools(t: np.ndarray) -> list[tuple[int, int, float]]:
-    """Pool adjacent violators: [(first, end, mean), ...] over t, whose means do not decrease."""
-    pools: list[list] = []
-    for k, value in enumerate(t):
-        pools.append([k, k + 1, float(value)])
-        while len(pools) > 1 and pools[-2][2] > pools[-1][2]:
-            (a, _, ta), (b, end, tb) = pools[-2], pools.pop()
-            pools[-1] = [a, end, (ta * (b - a) + tb * (end - b)) / (end - a)]
-    return [(a, b, m) for a, b, m in pools]
+    """Pool adjacent violators (scipy's isotonic regression): [(first, end, mean), ...] over t,
+    whose means do not decrease."""
+    fit = isotonic_regression(t)
+    return [(int(a), int(b), float(fit.x[a])) for a, b in zip(fit.blocks[:-1], fit.blocks[1:])]
 
 
 def _node_sections(section, members: list, periodic: bool):
