@@ -278,6 +278,47 @@ def test_interrupt_during_the_solve_leaves_nothing(sig, tmp_path):
     assert leftovers(tmp_path) == []
 
 
+# A run held in native code (here LAPACK's eigenvalues of a 4000 x 4000 matrix, 20 s on this
+# machine, as gmsh meshing a volume or an OpenCASCADE boolean that does not return): the command's
+# handler cannot run until the call returns, so the watcher (interrupts.py) ends the run with the
+# same message and code, and what the run holds is removed.
+HELD_IN_NATIVE_CODE = """
+import signal, sys
+from pathlib import Path
+import numpy as np
+from textile_fenicsx import cli, files, interrupts
+signal.signal(signal.SIGTERM, cli._interrupt)
+signal.signal(signal.SIGINT, cli._interrupt)
+interrupts.watch(cli._interrupted, files.abandon_outputs, cli.EXIT_INTERRUPTED)
+with files.staged_folder(Path(sys.argv[1])) as tmp:
+    (Path(tmp) / "half-written").write_text("x")
+    a = np.random.default_rng(0).random((4000, 4000))
+    print("ready", flush=True)
+    np.linalg.eigvals(a)
+"""
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_interrupt_inside_native_code_ends_the_run(sig, tmp_path):
+    from textile_fenicsx.interrupts import GRACE
+
+    proc = subprocess.Popen([sys.executable, "-c", HELD_IN_NATIVE_CODE, str(tmp_path / "run")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    assert sorted(n.split("-")[0] for n in leftovers(tmp_path)) == [".run.lock", ".run.partial"]
+    time.sleep(1.0)  # inside the call by now
+    sent = time.time()
+    proc.send_signal(sig)
+    time.sleep(GRACE / 3)
+    assert proc.poll() is None  # the handler cannot run inside the call
+    _, err = proc.communicate(timeout=GRACE + 30)
+    assert time.time() - sent < GRACE + 30
+    assert proc.returncode == 130
+    assert f"textile-fenicsx: error: interrupted ({sig.name}); no output was written" in err
+    assert leftovers(tmp_path) == []
+
+
 # --- 6. the command line documents itself -------------------------------------------------------
 
 @pytest.mark.serial

@@ -14,8 +14,10 @@ import signal
 import sys
 import traceback
 
+from textile_fenicsx import interrupts
 from textile_fenicsx.arguments import build_parser
 from textile_fenicsx.errors import MeshError, OutputError, TextileError
+from textile_fenicsx.files import abandon_outputs
 
 __all__ = ["EXIT_FAILED", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "build_parser", "main"]
 
@@ -23,7 +25,15 @@ EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 def _interrupt(signum: int, _frame: object) -> None:
+    interrupts.handled()
     raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _interrupted(signum: int) -> str:
+    """The message of a run ended by a signal (KeyboardInterrupt, or interrupts.py's watcher)."""
+    rank = int(os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")))
+    where = f" (rank {rank})" if rank else ""
+    return f"textile-fenicsx: error{where}: interrupted ({signal.Signals(signum).name}); no output was written"
 
 
 def _fail(code: int, message: str, collective: bool = False) -> int:
@@ -72,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INPUT
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGINT, _interrupt)
+    interrupts.watch(_interrupted, abandon_outputs, EXIT_INTERRUPTED)
     from textile_fenicsx.errors import SolverError
 
     _log_to_stderr()

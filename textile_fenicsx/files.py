@@ -140,6 +140,20 @@ def _release(out: Path) -> None:
         os.close(entry[0])
 
 
+def abandon_outputs() -> None:
+    """What a run ended at once leaves behind, removed (interrupts.py: a signal while the run is
+    held in native code): this process's temporary folders beside each output it holds, and the
+    output's lock file."""
+    import shutil
+
+    for key in list(_held):
+        lock = Path(key)
+        name = lock.name[1:-len(".lock")]
+        for tmp in lock.parent.glob(f".{name}.partial-{os.getpid()}-*"):
+            shutil.rmtree(tmp, ignore_errors=True)
+        lock.unlink(missing_ok=True)
+
+
 @contextlib.contextmanager
 def output_lock(out, comm=None):
     """Hold the lock of output folder `out` for the block (rank 0 holds it; collective with a
