@@ -15,16 +15,24 @@ from contextlib import contextmanager
 import numpy as np
 
 from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.interrupts import time_limit
 from textile_fenicsx.meshes.caps import CAP_ANGLE, flip_caps, triangle_angles
 from textile_fenicsx.meshes.periodic_sides import box_with_marks, outlines_on_sides, periodic_sides, side_marks
 from textile_fenicsx.textile import Cell
 
-__all__ = ["GROWTH", "fresh_start", "gmsh_session", "region_mesh", "session_options"]
+__all__ = ["GROWTH", "LIMIT_PER_TRIANGLE_S", "LIMIT_S", "fresh_start", "gmsh_session", "region_mesh", "session_options",
+           "time_limit_s"]
 
 log = logging.getLogger(__name__)
 
 # How fast element size may grow away from narrow regions (size change per unit distance).
 GROWTH = 1.0
+# A try of region_mesh that has not ended after LIMIT_S + LIMIT_PER_TRIANGLE_S per triangle of the
+# seed's size over the cell [s] is not going to: gmsh 4.13's initial 2D Delaunay (GFaceInitialMesh)
+# looped for 15 minutes on TexGen's refined orthogonal weave moved 0.7 mm in the plane, a model
+# whose tries otherwise end in seconds. Generous: a million triangles get 2 300 s.
+LIMIT_S = 300.0
+LIMIT_PER_TRIANGLE_S = 2e-3
 
 
 @contextmanager
@@ -75,7 +83,28 @@ def region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
                 name: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict, dict]:
     """Build and mesh the gmsh model `name` on this rank from the cell and each yarn's footprint
     outlines [(yarn, [(right, left), ...]), ...], element size `seed` [mm], edges closer than
-    `sliver` [mm] merged; returns (mesh arrays (_mesh_arrays), coverage {tag: yarns}, stats)."""
+    `sliver` [mm] merged; returns (mesh arrays (_mesh_arrays), coverage {tag: yarns}, stats).
+    Under the command line, a try that runs past time_limit_s ends the run (interrupts.time_limit)."""
+    limit = time_limit_s(cell, seed)
+
+    def message() -> str:
+        return (f"gmsh did not finish meshing the projected regions of {name} in {limit:.0f} s (a try takes "
+                "seconds; gmsh's 2D Delaunay can loop where footprints nearly touch): try another --seed, "
+                "or --sliver")
+
+    with time_limit(limit, message):
+        return _region_mesh(cell, outlines, seed, sliver, name)
+
+
+def time_limit_s(cell: Cell, seed: float) -> float:
+    """How long one try of region_mesh may take [s]: LIMIT_S, plus LIMIT_PER_TRIANGLE_S for each
+    triangle the seed gives the cell (TexGen's refined orthogonal weave, 6 900 triangles at seed
+    0.5 mm, 1 100 of them the seed's: 15-18 s; the satin 1 s)."""
+    return LIMIT_S + LIMIT_PER_TRIANGLE_S * cell.lx * cell.ly / (np.sqrt(3) / 4 * seed**2)
+
+
+def _region_mesh(cell: Cell, outlines: list, seed: float, sliver: float,
+                 name: str) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], dict, dict]:
     import gmsh
 
     gmsh.model.add(name)

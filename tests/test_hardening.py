@@ -319,6 +319,42 @@ def test_interrupt_inside_native_code_ends_the_run(sig, tmp_path):
     assert leftovers(tmp_path) == []
 
 
+LOOPING_IN_NATIVE_CODE = """
+import signal, sys
+from pathlib import Path
+import numpy as np
+from textile_fenicsx import cli, files, interrupts
+interrupts.watch(cli._interrupted, files.abandon_outputs, cli.EXIT_INTERRUPTED, cli._error_line)
+with files.staged_folder(Path(sys.argv[1])) as tmp:
+    with interrupts.time_limit(30.0, lambda: "never"):  # ends in time: nothing happens
+        pass
+    a = np.random.default_rng(0).random((4000, 4000))
+    with interrupts.time_limit(1.0, lambda: "gmsh did not finish"):
+        np.linalg.eigvals(a)
+"""
+
+
+@pytest.mark.serial
+def test_a_native_call_past_its_time_limit_ends_the_run(tmp_path):
+    # interrupts.time_limit, as meshes/regions.py bounds each try of the projected regions' mesh
+    start = time.time()
+    proc = subprocess.run([sys.executable, "-c", LOOPING_IN_NATIVE_CODE, str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines()[-1] == "textile-fenicsx: error: gmsh did not finish"
+    assert time.time() - start < 15  # the eigenvalues alone take 20 s
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.serial
+def test_time_limit_is_nothing_outside_the_command_line():
+    # in a user's own session (no interrupts.watch) the block runs to its end
+    script = ("import time; from textile_fenicsx import interrupts\n"
+              "with interrupts.time_limit(0.1, lambda: 'x'):\n    time.sleep(0.5)\nprint('done')")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.strip() == "done"
+
+
 # --- 6. the command line documents itself -------------------------------------------------------
 
 @pytest.mark.serial

@@ -29,11 +29,15 @@ def _interrupt(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
-def _interrupted(signum: int) -> str:
-    """The message of a run ended by a signal (KeyboardInterrupt, or interrupts.py's watcher)."""
+def _error_line(text: str) -> str:
+    """An error's line on stderr, as printed from a watcher thread (interrupts.py)."""
     rank = int(os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")))
-    where = f" (rank {rank})" if rank else ""
-    return f"textile-fenicsx: error{where}: interrupted ({signal.Signals(signum).name}); no output was written"
+    return f"textile-fenicsx: error{f' (rank {rank})' if rank else ''}: {text}"
+
+
+def _interrupted(signum: int) -> str:
+    """The message of a run ended by a signal from interrupts.py's watcher."""
+    return _error_line(f"interrupted ({signal.Signals(signum).name}); no output was written")
 
 
 def _fail(code: int, message: str, collective: bool = False) -> int:
@@ -82,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INPUT
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGINT, _interrupt)
-    interrupts.watch(_interrupted, abandon_outputs, EXIT_INTERRUPTED)
+    interrupts.watch(_interrupted, abandon_outputs, EXIT_INTERRUPTED, _error_line)
     from textile_fenicsx.errors import SolverError
 
     _log_to_stderr()
