@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 GROWTH = 1.0
 # A try of region_mesh that has not ended after LIMIT_S + LIMIT_PER_TRIANGLE_S per triangle of the
 # seed's size over the cell [s] is not going to: gmsh 4.13's initial 2D Delaunay (GFaceInitialMesh)
-# looped for 15 minutes on TexGen's refined orthogonal weave moved 0.7 mm in the plane, a model
+# looped for over 20 minutes on TexGen's refined orthogonal weave moved 0.7 mm in the plane, a model
 # whose tries otherwise end in seconds. Generous: a million triangles get 2 300 s.
 LIMIT_S = 300.0
 LIMIT_PER_TRIANGLE_S = 2e-3

@@ -4,7 +4,8 @@ The command line turns SIGINT and SIGTERM into KeyboardInterrupt (cli.py), and t
 exit 130, its message and nothing left behind. Python runs a signal's handler only between byte
 codes of its main thread, so a run inside one long native call, gmsh meshing a volume for minutes
 or an OpenCASCADE boolean that does not return, did not answer a signal until the call returned,
-or ever (`timeout` and Ctrl-C left a stuck gmsh running for 15 minutes, until SIGKILL).
+or ever (`timeout 900` and `kill -TERM` left a stuck gmsh running for over 20 minutes,
+until SIGKILL).
 
 `watch` (the command line calls it) adds a watcher: the signal's number is written to a pipe as it
 arrives (signal.set_wakeup_fd, which the interpreter does in C, whatever the main thread is doing),
@@ -14,7 +15,7 @@ ends the run itself, as the handler would have, with the same message and exit c
 `cleanup` (the output's lock and temporary folders: files.abandon_outputs).
 
 `time_limit` bounds a block the same way: a native call that never returns (gmsh 4.13's initial 2D
-Delaunay, GFaceInitialMesh, looped for 15 minutes on the projected regions of TexGen's refined
+Delaunay, GFaceInitialMesh, looped for over 20 minutes on the projected regions of TexGen's refined
 orthogonal weave moved 0.7 mm in the plane) ends the run with a message that says what to try.
 It acts only in a process that `watch`es (the command line): in a user's own Python session it is
 not for us to end the process.
