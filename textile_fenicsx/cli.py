@@ -29,15 +29,28 @@ def _interrupt(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
-def _error_line(text: str) -> str:
-    """An error's line on stderr, as printed from a watcher thread (interrupts.py)."""
-    rank = int(os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")))
+def _env_rank() -> int:
+    """This process's MPI rank as mpirun tells it (0 outside mpirun), without importing MPI."""
+    return int(os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")))
+
+
+def _line(text: str, rank: int = 0) -> str:
+    """An error's line on stderr, naming the rank other than 0 that prints it."""
     return f"textile-fenicsx: error{f' (rank {rank})' if rank else ''}: {text}"
+
+
+def _error_line(text: str) -> str:
+    """An error's line as printed from a watcher thread (interrupts.py)."""
+    return _line(text, _env_rank())
+
+
+def _interrupted_text(signal_name: str) -> str:
+    return f"interrupted ({signal_name}); no output was written"
 
 
 def _interrupted(signum: int) -> str:
     """The message of a run ended by a signal from interrupts.py's watcher."""
-    return _error_line(f"interrupted ({signal.Signals(signum).name}); no output was written")
+    return _error_line(_interrupted_text(signal.Signals(signum).name))
 
 
 def _fail(code: int, message: str, collective: bool = False) -> int:
@@ -51,10 +64,9 @@ def _fail(code: int, message: str, collective: bool = False) -> int:
         rank, size = MPI.COMM_WORLD.rank, MPI.COMM_WORLD.size
     if collective and size > 1:
         if rank == 0:
-            print(f"textile-fenicsx: error: {message}", file=sys.stderr, flush=True)
+            print(_line(message), file=sys.stderr, flush=True)
         return code
-    where = f" (rank {rank})" if size > 1 and rank else ""
-    print(f"textile-fenicsx: error{where}: {message}", file=sys.stderr, flush=True)
+    print(_line(message, rank if size > 1 else 0), file=sys.stderr, flush=True)
     if size > 1:
         sys.stderr.flush()
         MPI.COMM_WORLD.Abort(code)
@@ -63,9 +75,7 @@ def _fail(code: int, message: str, collective: bool = False) -> int:
 
 def _log_to_stderr() -> None:
     """Progress lines (the library's logging, INFO) to stderr, from rank 0 only."""
-    rank = 0
-    if "mpi4py.MPI" in sys.modules or "OMPI_COMM_WORLD_RANK" in os.environ:
-        rank = int(os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")))
+    rank = _env_rank() if "mpi4py.MPI" in sys.modules or "OMPI_COMM_WORLD_RANK" in os.environ else 0
     root = logging.getLogger("textile_fenicsx")
     root.handlers.clear()
     if rank == 0:
@@ -97,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     except (SolverError, MeshError, OutputError) as e:
         return _fail(EXIT_FAILED, str(e), getattr(e, "collective", False))
     except KeyboardInterrupt as e:
-        return _fail(EXIT_INTERRUPTED, f"interrupted ({str(e) or 'SIGINT'}); no output was written")
+        return _fail(EXIT_INTERRUPTED, _interrupted_text(str(e) or "SIGINT"))
     except OSError as e:
         return _fail(EXIT_FAILED, f"cannot read or write {e.filename or 'a file'}: {e.strerror or e}",
                      getattr(e, "collective", False))
