@@ -59,6 +59,8 @@ TETS_PER_VOLUME = 37.0
 # 0.014), but over the family the worst tet got worse (ours_orthogonal's minSICN 0.0023 instead of
 # 0.0118, basket3's 0.0050 instead of 0.0098): kept.
 OPTIMISE = ("Relocate3D", "")
+# A tet whose volume is at most this fraction of the box's is flat: the mesh is refused
+FLAT = 1e-12
 # How far apart [fraction of the box] the bounding boxes of two faces paired as periodic may be: OCC's
 # boxes of spline faces are loose (the faces are then checked by the mesh's periodicity).
 PAIR_TOLERANCE = 5e-4
@@ -318,11 +320,17 @@ def _nodes() -> tuple[np.ndarray, np.ndarray]:
     return xyz.reshape(-1, 3), index
 
 
-def _mesh_arrays(phase_of: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nodes (N, 3), tets (E, 4) and phases (E,) of the current gmsh model, positively oriented."""
+def _mesh_arrays(phase_of: dict[int, int], pairs: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
+    """Nodes (N, 3), tets (E, 4) and phases (E,) of the current gmsh model, positively oriented,
+    and per periodic axis of `pairs` the rows of the nodes gmsh put on the box's + and - faces."""
     import gmsh
 
     points, index = _nodes()
+
+    def on(faces) -> np.ndarray:  # the nodes of these surfaces, their curves and corners included
+        tags = [gmsh.model.mesh.getNodes(2, int(f), includeBoundary=True)[0] for f in faces]
+        return np.unique(index[np.concatenate(tags + [np.zeros(0)]).astype(np.int64)])
+
     tets: list[np.ndarray] = []
     phase: list[np.ndarray] = []
     for vol, ph in sorted(phase_of.items()):
@@ -333,7 +341,11 @@ def _mesh_arrays(phase_of: dict[int, int]) -> tuple[np.ndarray, np.ndarray, np.n
             tets.append(index[nd.astype(np.int64)].reshape(-1, 4))
             phase.append(np.full(len(tets[-1]), ph, np.int32))
     used, inverse = np.unique(np.concatenate(tets), return_inverse=True)
-    return points[used], inverse.reshape(-1, 4), np.concatenate(phase)
+    row = np.full(len(points), -1, np.int64)
+    row[used] = np.arange(len(used))
+    rows = [(axis, row[on(slaves)], row[on(masters)]) for axis, slaves, masters, _, _ in pairs]
+    faces = [(axis, plus[plus >= 0], minus[minus >= 0]) for axis, plus, minus in rows]  # nodes in no tet left out
+    return points[used], inverse.reshape(-1, 4), np.concatenate(phase), faces
 
 
 def _crossings(phase_of: dict[int, int]) -> tuple[np.ndarray, tuple[int, ...]]:
@@ -438,7 +450,7 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         gmsh.model.mesh.optimize(method)
     times["volume_s"] = time.perf_counter() - t
     log.info("tet: volume mesh and optimisation %.1f s", times["volume_s"])
-    return _mesh_arrays(phase_of), lo, hi, pairs, attempt, curvature
+    return _mesh_arrays(phase_of, pairs), lo, hi, pairs, attempt, curvature
 
 
 def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
@@ -545,8 +557,8 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
         gmsh.model.add(f"tet-{textile.name}")
         added = True
         with tempfile.TemporaryDirectory(prefix="tet-sizes-") as folder:
-            (points, tets, phase), lo, hi, pairs, traced, curvature = _generate(textile, options, gap, shrink, height,
-                                                                                times, folder)
+            arrays, lo, hi, pairs, traced, curvature = _generate(textile, options, gap, shrink, height, times, folder)
+        points, tets, phase, faces = arrays
         elements = gmsh.model.mesh.getElementsByType(4)[0]
         quality = gmsh.model.mesh.getElementQualities(elements, "minSICN")
         gamma = gmsh.model.mesh.getElementQualities(elements, "gamma")
@@ -556,16 +568,12 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
         if not initialised:
             gmsh.finalize()
     t = time.perf_counter()
-    snapped = _snap_periodic(points, lo, hi)
+    snapped = _snap_periodic(points, lo, hi, faces)
     vol = checks.signed_volumes(points, tets)
     flip = vol < 0
     tets[flip] = tets[flip][:, [0, 2, 1, 3]]
     vol = np.abs(vol)
-    if vol.min() <= 1e-12 * float(np.prod(hi - lo)):
-        k = int(np.argmin(vol))
-        where = ", ".join(f"{v:.3f}" for v in points[tets[k]].mean(axis=0))
-        raise GeometryError(f"the tet mesh of {textile.name!r} has a flat tet at ({where}) mm "
-                            f"(volume {vol[k]:.2g} mm^3)")
+    _refuse_flat(textile.name, points, tets, vol, lo, hi)
     fibre = np.zeros((len(tets), 3))
     centroids = points[tets].mean(axis=1)
     for i in range(len(textile.yarns)):
@@ -592,16 +600,39 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
     return mesh
 
 
-def _snap_periodic(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+def _refuse_flat(name: str, points: np.ndarray, tets: np.ndarray, vol: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray) -> None:
+    """A GeometryError if any tet is flat (its volume at most FLAT of the box's), naming the
+    flattest and whether it lies on a side of the box: where a yarn's surface runs along a side
+    within 1e-5 mm, gmsh's own mesh has such tets (50 on ortho_w3f4, 4e-19 to 3e-12 mm^3)."""
+    flat = vol <= FLAT * float(np.prod(hi - lo))
+    if not np.any(flat):
+        return
+    k = int(np.argmin(vol))
+    corners = points[tets[k]]
+    where = ", ".join(f"{v:.3f}" for v in corners.mean(axis=0))
+    near = 1e-6 * float(np.max(hi - lo))
+    sides = [f"{sign}{'xyz'[ax]}" for ax in range(3) for sign, end in (("-", lo[ax]), ("+", hi[ax]))
+             if np.any(np.abs(corners[:, ax] - end) <= near)]
+    place = (f"on the box's {' and '.join(sides)} side: a yarn's surface runs along the side there, and gmsh "
+             "cannot fill the sliver between them; use --kind voxel" if sides
+             else "inside the box; try another --size, or use --kind voxel")
+    raise GeometryError(f"the tet mesh of {name!r} has {int(np.sum(flat))} flat tets (volume at most {FLAT:g} of the "
+                        f"box's), the flattest ({vol[k]:.2g} mm^3) at ({where}) mm {place}")
+
+
+def _snap_periodic(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, faces: list) -> float:
     """Put every node of a + face exactly on the image of its - face partner (gmsh places the
     copies it makes on the + face's own geometry, which OCC cut to about 1e-7 mm of the - face's
-    moved). Returns the largest move [mm]; a node with no partner within 1e-5 of the cell's size
-    is left (the periodicity check reports it)."""
+    moved). faces: per axis, the rows of the nodes gmsh put on its + and - faces (_mesh_arrays);
+    only those move. A node near a face but not on it is a yarn's: where a side cuts a leg
+    lengthwise, its skin runs within 1e-5 mm of the face, and putting such nodes onto the face (or
+    onto a face node's image) made 96 flat tets on ortho_w3f4. A + node moves onto the nearest -
+    node within 1e-5 of the cell's size that no nearer + node claims; one left without is left
+    where it is (the periodicity check reports it). Returns the largest move [mm]."""
     eps = 1e-9 * float(np.max(hi - lo))
     worst = 0.0
-    for ax in range(3):
-        plus = np.flatnonzero(np.abs(points[:, ax] - hi[ax]) <= 1e3 * eps)
-        minus = np.flatnonzero(np.abs(points[:, ax] - lo[ax]) <= 1e3 * eps)
+    for ax, plus, minus in faces:
         if not len(plus) or not len(minus):
             continue
         shift = np.zeros(3)
@@ -610,8 +641,11 @@ def _snap_periodic(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
         points[plus, ax] = hi[ax]
         d, j = cKDTree(points[minus]).query(points[plus] - shift)
         ok = d <= 1e4 * eps
-        worst = max(worst, float(d[ok].max(initial=0.0)))
-        points[plus[ok]] = points[minus[j[ok]]] + shift
+        order = np.flatnonzero(ok)[np.argsort(d[ok], kind="stable")]
+        _, first = np.unique(j[order], return_index=True)  # each - node to its nearest + node only
+        mine = order[first]
+        worst = max(worst, float(d[mine].max(initial=0.0)))
+        points[plus[mine]] = points[minus[j[mine]]] + shift
     return worst
 
 

@@ -36,6 +36,53 @@ def test_periodic_images_good_and_broken():
 
 
 @pytest.mark.serial
+def test_only_the_face_nodes_are_snapped_and_each_onto_its_own_image():
+    """A side that cuts a leg lengthwise: the leg's skin runs 5e-7 of the cell from the + face (a
+    node gmsh did not put on the face, 1.5e-6 from a face node's image) beside a face node 1e-7
+    off its image. Snapping every node near the face onto it and onto the nearest image put both
+    on one place, and the tet of the skin node, the face node and two more face nodes went flat
+    (ortho_w3f4: 96 flat tets). Only the face nodes move; each - node takes its nearest + node."""
+    from textile_fenicsx.meshes.tetra import _snap_periodic
+
+    lo, hi = np.zeros(3), np.ones(3)
+    points = np.array([[0.0, 0.5, 0.5], [0.0, 0.6, 0.5], [0.0, 0.5, 0.6],       # - face
+                       [1 + 1e-7, 0.5, 0.5], [1.0, 0.6, 0.5 + 1e-7], [1.0, 0.5, 0.6],  # + face
+                       [1 - 5e-7, 0.5 + 1.3e-6, 0.5],                              # the leg's skin
+                       [1 + 2e-7, 0.6 + 3e-7, 0.5]])                               # a 2nd claim on row 1
+    skin = points[6].copy()
+    moved = _snap_periodic(points, lo, hi, [(0, np.array([3, 4, 5, 7]), np.array([0, 1, 2]))])
+    assert np.array_equal(points[6], skin)  # not a face node: left where it is
+    assert np.array_equal(points[3:6] - [1, 0, 0], points[0:3])  # each face node on its image
+    assert np.array_equal(points[7], [1.0, 0.6 + 3e-7, 0.5])  # row 1 is row 4's (nearer): row 7 only to the face
+    assert moved == pytest.approx(1e-7, rel=1e-6)
+    volume = checks.signed_volumes(points, np.array([[6, 3, 4, 5]]))
+    assert abs(volume[0]) == pytest.approx(5e-7 * 0.1 * 0.1 / 6, rel=1e-3)  # the skin's tet keeps its volume
+    assert len(np.unique(points, axis=0)) == len(points)
+
+
+@pytest.mark.serial
+def test_a_flat_tet_is_refused_with_its_place():
+    """Four nodes of one plane (3e-10 mm off it: 5e-13 mm^3 in a 1 mm^3 box, below FLAT) on the box's
+    + x side, as gmsh left them where a binder's leg runs along the side of ortho_w3f4; then the
+    same tet inside the box. A tet of a fifth of the box's volume passes."""
+    from textile_fenicsx.meshes.tetra import _refuse_flat
+
+    lo, hi = np.zeros(3), np.ones(3)
+    points = np.array([[1.0, 0.2, 0.2], [1.0, 0.3, 0.2], [1.0, 0.2, 0.3], [1 - 3e-10, 0.26, 0.26],
+                       [0.5, 0.2, 0.2], [0.5, 0.3, 0.2], [0.5, 0.2, 0.3], [0.5 - 3e-10, 0.26, 0.26]])
+    tets = np.array([[0, 1, 2, 3]])
+    vol = np.abs(checks.signed_volumes(points, tets))
+    assert vol[0] == pytest.approx(3e-10 * 0.005 / 3, rel=1e-4)
+    with pytest.raises(GeometryError, match=r"1 flat tets .*\(1.000, 0.240, 0.240\) mm on the box's \+x side.*"
+                                            r"--kind voxel"):
+        _refuse_flat("cell", points, tets, vol, lo, hi)
+    with pytest.raises(GeometryError, match=r"\(0.500, 0.240, 0.240\) mm inside the box; try another --size"):
+        _refuse_flat("cell", points, tets + 4, vol, lo, hi)
+    big = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    _refuse_flat("cell", big, tets, np.abs(checks.signed_volumes(big, tets)), lo, hi)
+
+
+@pytest.mark.serial
 def test_signed_volumes_orientation():
     points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
     assert checks.signed_volumes(points, np.array([[0, 1, 2, 3]]))[0] == pytest.approx(1 / 6)
