@@ -326,11 +326,6 @@ def _mesh_arrays(phase_of: dict[int, int], pairs: list) -> tuple[np.ndarray, np.
     import gmsh
 
     points, index = _nodes()
-
-    def on(faces) -> np.ndarray:  # the nodes of these surfaces, their curves and corners included
-        tags = [gmsh.model.mesh.getNodes(2, int(f), includeBoundary=True)[0] for f in faces]
-        return np.unique(index[np.concatenate(tags + [np.zeros(0)]).astype(np.int64)])
-
     tets: list[np.ndarray] = []
     phase: list[np.ndarray] = []
     for vol, ph in sorted(phase_of.items()):
@@ -343,8 +338,13 @@ def _mesh_arrays(phase_of: dict[int, int], pairs: list) -> tuple[np.ndarray, np.
     used, inverse = np.unique(np.concatenate(tets), return_inverse=True)
     row = np.full(len(points), -1, np.int64)
     row[used] = np.arange(len(used))
-    rows = [(axis, row[on(slaves)], row[on(masters)]) for axis, slaves, masters, _, _ in pairs]
-    faces = [(axis, plus[plus >= 0], minus[minus >= 0]) for axis, plus, minus in rows]  # nodes in no tet left out
+
+    def on(surfaces) -> np.ndarray:  # rows of these surfaces' nodes (curves and corners included; none in no tet)
+        tags = [gmsh.model.mesh.getNodes(2, int(f), includeBoundary=True)[0] for f in surfaces]
+        rows = row[np.unique(index[np.concatenate(tags + [np.zeros(0)]).astype(np.int64)])]
+        return rows[rows >= 0]
+
+    faces = [(axis, on(slaves), on(masters)) for axis, slaves, masters, _, _ in pairs]
     return points[used], inverse.reshape(-1, 4), np.concatenate(phase), faces
 
 
