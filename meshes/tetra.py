@@ -484,7 +484,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
                             "use --kind voxel")
         move, tried = moves[tried], tried + 1
         log.warning("tet: OCC's cut of the skin of %s by the box gave nothing: the box moved by (%.4g, %.4g) mm along "
-                    "the cell's sides, to the middle of a gap between the yarns along them", names, move[0], move[1])
+                    "the cell's sides, into a gap between the yarns along them", names, move[0], move[1])
         gmsh.model.remove()
         gmsh.model.add(f"tet-{textile.name}")
     times["solids_s"] = time.perf_counter() - t

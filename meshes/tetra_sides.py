@@ -15,8 +15,13 @@ The box cuts each yarn's skin, a chain of ruled faces between section stations:
 - OCC's cut of such a binder's skin by the box at x = 0 returned nothing, for any station rule
   tried. The same cut at x = 2.8 or 5.6 mm, through legs of the same shape, keeps the binder.
   A periodic cell's box may start anywhere, so where a yarn is lost in the cut the box moves
-  (`moves`): to the middle of a gap between the yarns that run along that axis's sides, nearest
-  the origin first. A side there cuts no yarn lengthwise other than such legs.
+  (`moves`): into a gap between the yarns that run along that axis's sides, nearest the origin
+  first. A side there cuts no yarn lengthwise other than the legs in the gap, and a leg's straight
+  stretch is avoided too: at a gap's middle the side ran along the edges of the leg centred there
+  (its sections' tips, within 1.4e-6 mm), and gmsh left flat tets in the sliver on ortho_w3f4.
+  So the side lies midway between the leg's straight stretch and the gap's end (the middles of
+  the gap's stretches clear of legs, those at least half as wide as the widest); at the gap's
+  middle where legs fill it.
 """
 
 from __future__ import annotations
@@ -29,6 +34,9 @@ from textile_fenicsx.textile import Textile
 BESIDE = 0.4
 # ... where the yarn crosses it: |tangent . side's normal| above this (cos 60 degrees)
 CROSSING = 0.5
+# ... where it runs along it, as a binder's straight leg: |tangent . side's normal| at most this
+# (within 3 degrees of the side's plane)
+ALONG = 0.05
 # a move by less than this fraction of the cell is the box where it is
 STILL = 0.01
 # legs keep their stations where leaving out the stations near the sides would move a skin by more
@@ -84,36 +92,70 @@ def legs_on_sides(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, 
     return worst > LEGS * gap
 
 
-def _gap_middles(extents: np.ndarray, lo: float, length: float) -> np.ndarray:
-    """The middles of the gaps between intervals (N, 2) [mm] on a circle of `length` starting at
-    lo, as shifts from lo in (-length / 2, length / 2], nearest 0 first; none where the
-    intervals leave no gap."""
+def _gaps(extents: np.ndarray, lo: float, length: float) -> list[tuple[float, float]]:
+    """The gaps (start, end) [mm, from lo; start in [0, length)] between intervals (N, 2) [mm] on a
+    circle of `length` starting at lo; none where the intervals leave no gap."""
     if len(extents) == 0:
-        return np.zeros(0)
+        return []
     a = (extents[:, 0] - lo) % length
     spans = sorted(zip(a, a + extents[:, 1] - extents[:, 0]))
-    middles, reach = [], spans[0][1]
+    gaps, reach = [], spans[0][1]
     for start, end in spans[1:] + [(spans[0][0] + length, spans[0][1] + length)]:
         if start > reach:
-            middles.append((reach + start) / 2)
+            gaps.append((reach % length, reach % length + start - reach))
         reach = max(reach, end)
-    m = np.array(middles) % length
-    m = np.where(m > length / 2, m - length, m)
-    return m[np.argsort(np.abs(m), kind="stable")]
+    return gaps
+
+
+def _clear_middles(start: float, end: float, legs: np.ndarray, lo: float, length: float) -> list[float]:
+    """Where in the gap [start, end] (from lo) a side may lie: the middles of its stretches clear of
+    the legs' extents (N, 2) [mm] at least half as wide as the widest; the gap's middle where the
+    legs leave none clear."""
+    a = (legs[:, 0] - lo) % length
+    cuts = sorted((s + k * length, s + k * length + w) for s, w in zip(a, legs[:, 1] - legs[:, 0]) for k in (-1, 0, 1)
+                  if s + k * length < end and s + k * length + w > start)
+    stretches, at = [], start
+    for s, e in cuts:
+        if s > at:
+            stretches.append((at, s))
+        at = max(at, e)
+    if end > at:
+        stretches.append((at, end))
+    if not cuts or not stretches:
+        return [(start + end) / 2]
+    widest = max(e - s for s, e in stretches)
+    return [(s + e) / 2 for s, e in stretches if e - s >= widest / 2]
+
+
+def _legs(textile: Textile, sections: list[np.ndarray], ax: int) -> np.ndarray:
+    """The extents (N, 2) along axis ax [mm] of the sections where a yarn that crosses that axis's
+    sides runs along them (its tangent within 3 degrees of their plane: a binder's straight leg)."""
+    out = [np.zeros((0, 2))]
+    for y, one in zip(textile.yarns, sections):
+        if y.periodic and abs(y.period[ax]) > 1e-9:
+            tangent = np.gradient(one.mean(axis=1), axis=0)
+            leg = np.abs(tangent[:, ax]) <= ALONG * np.maximum(np.linalg.norm(tangent, axis=1), 1e-12)
+            out.append(np.stack([one[leg][..., ax].min(axis=1), one[leg][..., ax].max(axis=1)], axis=1))
+    return np.concatenate(out)
 
 
 def moves(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
     """Shifts (dx, dy, 0) [mm] of the box [lo, hi] to try, in order, where OCC's cut loses a yarn:
-    along x, then along y, the middles of the gaps between the yarns that do not cross that
-    axis's sides (nearest the box's own place first; none within STILL x the cell of it). sections: each yarn's section
-    polygons (M, K, 3) over one period (tetra_solids.yarn_sections)."""
+    along x, then along y, into the gaps between the yarns that do not cross that axis's sides,
+    midway between the legs there and their sides (nearest the box's own place first; none within
+    STILL x the cell of it). sections: each yarn's section polygons (M, K, 3) over one period
+    (tetra_solids.yarn_sections)."""
     out = []
     for ax in (0, 1):
         along = [np.stack([one[..., ax].min(axis=1), one[..., ax].max(axis=1)], axis=1)
                  for y, one in zip(textile.yarns, sections) if not (y.periodic and abs(y.period[ax]) > 1e-9)]
         extents = np.concatenate(along) if along else np.zeros((0, 2))
+        legs = _legs(textile, sections, ax)
         length = float(hi[ax] - lo[ax])
-        for d in _gap_middles(extents, float(lo[ax]), length):
+        places = np.array([m for s, e in _gaps(extents, float(lo[ax]), length)
+                           for m in _clear_middles(s, e, legs, float(lo[ax]), length)]) % length
+        places = np.where(places > length / 2, places - length, places)
+        for d in sorted(places, key=lambda d: (round(abs(d), 9), d)):
             if abs(d) > STILL * length:
                 move = np.zeros(3)
                 move[ax] = d

@@ -388,10 +388,14 @@ def test_legs_keep_their_stations_only_where_leaving_them_out_strays_far(referen
 
 
 @pytest.mark.serial
-def test_the_box_moves_to_the_gaps_between_the_yarns_along_its_sides(reference_dir):
+def test_the_box_moves_into_the_gaps_between_the_yarns_along_its_sides_clear_of_the_legs(reference_dir):
     """TexGen's orthogonal weave: the weft columns run along y at x = 1.4 + 2.8 k (2.58 mm wide), so
-    the gaps between them are centred on x = 2.8 k. The cell's side x = 0 is one of those middles,
-    so the places tried next are x = 2.8, -2.8 and 5.6 mm; then moves along y."""
+    the gaps between them are x = 2.8 k +- 0.11 mm, and the binders' straight legs run down their
+    middles (the binder's 0.16 mm height across: x = 2.8 k +- 0.08). A side at a gap's middle
+    runs along a leg's edges (its sections' tips), where gmsh left flat tets on ortho_w3f4, so the
+    box moves to midway between a leg and the next column: x = 2.8 k +- 0.095 (to 0.002 mm: the legs
+    lean by 0.001). The cell's side x = 0 is in such a gap; the places tried next are the four
+    beside x = +-2.8 (nearest first), then along x beside 5.6, and only then along y."""
     from textile_fenicsx.meshes import tetra_sides
     from textile_fenicsx.meshes import tetra_solids as solids
 
@@ -400,8 +404,12 @@ def test_the_box_moves_to_the_gaps_between_the_yarns_along_its_sides(reference_d
     sections = [solids.yarn_sections(t, i, o.spacing, o.points) for i in range(len(t.yarns))]
     c = t.cell
     moves = tetra_sides.moves(t, sections, np.array([c.x0, c.y0, 0.0]), np.array([c.x0 + c.lx, c.y0 + c.ly, 1.0]))
-    assert np.allclose([m[:2] for m in moves[:3]], [[2.8, 0.0], [-2.8, 0.0], [5.6, 0.0]], atol=1e-9)
-    assert all(m[0] == 0.0 and m[1] != 0.0 for m in moves[3:]) and len(moves) > 3
+    leg, gap = 0.16 / 2, (2.8 - 2.58) / 2
+    beside = (leg + gap) / 2
+    expected = [-(2.8 - beside), 2.8 - beside, -(2.8 + beside), 2.8 + beside]
+    assert np.allclose([m[:2] for m in moves[:4]], [[x, 0.0] for x in expected], atol=2e-3)
+    assert abs(abs(moves[4][0]) - (5.6 - beside)) < 2e-3 and moves[4][1] == 0.0
+    assert all(m[0] == 0.0 and m[1] != 0.0 for m in moves if m[1] != 0.0) and any(m[1] != 0.0 for m in moves)
 
 
 def _coarse_mesh(loose_plain, comm):
