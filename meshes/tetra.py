@@ -83,7 +83,7 @@ RETRACE = 2
 CURVATURE_STEPS = 2
 SHORT = 0.009
 # Places the box may move to, past the cell's origin, where OCC's cut of a skin by the box gives
-# nothing (tetra_sides.moves)
+# nothing or leaves the faces of two sides unpaired (tetra_sides.moves)
 MOVES = 3
 
 
@@ -457,7 +457,8 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
               folder: str, refine: int, move: np.ndarray):
     """The solids of the box (sections traced by refine x their points), their periodicity, sizes
     and surface mesh (the model current). The box is the cell's moved by `move` (mm), and moved
-    again where OCC's cut loses a yarn (tetra_sides). Returns the box, pairs, volume tag -> phase
+    again where OCC's cut loses a yarn or leaves faces on one side without their images on the
+    other (tetra_sides). Returns the box, pairs, volume tag -> phase
     and the move."""
     import gmsh
 
@@ -473,18 +474,21 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         lo, hi = lo0 + move, hi0 + move
         phase_of, lost = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad,
                                       legs)
+        why = "OCC's cut of the skin of " + ", ".join(textile.yarns[i].name for i in lost) + " by the box gave nothing"
         if not lost:
-            break
-        names = ", ".join(textile.yarns[i].name for i in lost)
+            try:
+                pairs = solids.periodic_pairs(lo, hi, (0, 1, 2), PAIR_TOLERANCE * float(np.max(hi - lo)))
+                break
+            except RuntimeError as e:  # a face cut on one side only (docs/tet_mesh.md)
+                why = str(e)
         if moves is None:  # where the box may go instead (tetra_sides.moves), not where it is
             moves = [m for m in tetra_sides.moves(textile, sections, lo0, hi0) if not np.allclose(m, move)][:MOVES]
         if tried == len(moves):
-            raise MeshError(f"the tet mesh of {textile.name!r}: OCC's cut of the skin of {names} by the box gave "
-                            f"nothing, with the box at the cell's origin and moved {tried} times along its sides; "
-                            "use --kind voxel")
+            raise MeshError(f"the tet mesh of {textile.name!r}: {why}, with the box at the cell's origin and moved "
+                            f"{tried} times along its sides; use --kind voxel")
         move, tried = moves[tried], tried + 1
-        log.warning("tet: OCC's cut of the skin of %s by the box gave nothing: the box moved by (%.4g, %.4g) mm along "
-                    "the cell's sides, into a gap between the yarns along them", names, move[0], move[1])
+        log.warning("tet: %s: the box moved by (%.4g, %.4g) mm along the cell's sides, into a gap between the yarns "
+                    "along them", why, move[0], move[1])
         gmsh.model.remove()
         gmsh.model.add(f"tet-{textile.name}")
     times["solids_s"] = time.perf_counter() - t
@@ -492,7 +496,6 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
              sum(1 for p in phase_of.values() if p), np.round(lo, 4).tolist(), np.round(hi, 4).tolist(),
              times["solids_s"], estimate)
     t = time.perf_counter()
-    pairs = solids.periodic_pairs(lo, hi, (0, 1, 2), PAIR_TOLERANCE * float(np.max(hi - lo)))
     for _, slaves, masters, shift, _ in pairs:
         affine = np.eye(4)
         affine[:3, 3] = shift

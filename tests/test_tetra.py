@@ -420,25 +420,37 @@ def _coarse_mesh(loose_plain, comm):
 
 
 @pytest.mark.mpi
-def test_a_yarn_lost_by_the_cut_moves_the_box(loose_plain, comm, monkeypatch):
+def test_a_yarn_lost_by_the_cut_or_unpaired_faces_move_the_box(loose_plain, comm, monkeypatch):
     """Where OCC's cut of a skin by the box gives nothing (made to happen here, at the cell's own
-    place), the box moves to the middle of the next gap between the yarns along its sides (2 mm
-    along x, either way, on this plain weave of 2 mm spacing: its corrected wefts are symmetric to
-    3e-6 mm) and the mesh is made there: periodic, every yarn's
-    volume within 1 %, and the move in the report."""
+    place), the box moves to the middle of the next gap between the yarns along its sides: 2 mm
+    along x on this plain weave of 2 mm spacing (its corrected wefts are symmetric to 3e-6 mm; it
+    has no legs to keep clear of). Where the faces of two sides then do not pair (made to happen
+    there), it moves on, to the next such place (2 mm along y: the only gap along x is taken),
+    and the mesh is made there: periodic, every yarn's volume within 1 %, and the move in the
+    report."""
     from textile_fenicsx.meshes import tetra_solids
 
-    build = tetra_solids.build
+    build, pair, tried = tetra_solids.build, tetra_solids.periodic_pairs, []
     def lost_at_the_origin(textile, lo, hi, *args, **kwargs):
+        tried.append([float(lo[0] - textile.cell.x0), float(lo[1] - textile.cell.y0)])
         phase, lost = build(textile, lo, hi, *args, **kwargs)
-        return phase, ([0] if lo[0] == textile.cell.x0 else lost)
+        return phase, ([0] if len(tried) == 1 else lost)
+
+    def unpaired_at_the_first_move(lo, hi, *args, **kwargs):
+        if len(tried) == 2:
+            raise RuntimeError("the faces of the two sides along x do not pair up (made to fail here)")
+        return pair(lo, hi, *args, **kwargs)
 
     monkeypatch.setattr(tetra_solids, "build", lost_at_the_origin)
+    monkeypatch.setattr(tetra_solids, "periodic_pairs", unpaired_at_the_first_move)
     mesh = _coarse_mesh(loose_plain, comm)
     if mesh is None:
         return
     r = mesh.report
-    assert abs(r["box_moved_mm"][0]) == pytest.approx(2.0, abs=1e-4) and r["box_moved_mm"][1] == 0.0
+    assert len(tried) == 3 and tried[0] == [0.0, 0.0]
+    assert abs(tried[1][0]) == pytest.approx(2.0, abs=1e-4) and tried[1][1] == 0.0
+    assert tried[2][0] == 0.0 and abs(tried[2][1]) == pytest.approx(2.0, abs=1e-4)
+    assert r["box_moved_mm"] == pytest.approx(tried[2], abs=1e-9)
     assert r["periodicity"]["periodic"]
     assert r["volume"]["worst_error_percent"] < 1.0
 
