@@ -474,8 +474,10 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         lo, hi = lo0 + move, hi0 + move
         phase_of, lost = solids.build(textile, lo, hi, options.spacing, refine * options.points, shrink, z_pad,
                                       legs)
-        why = "OCC's cut of the skin of " + ", ".join(textile.yarns[i].name for i in lost) + " by the box gave nothing"
-        if not lost:
+        if lost:
+            names = ", ".join(textile.yarns[i].name for i in lost)
+            why = f"OCC's cut of the skin of {names} by the box gave nothing"
+        else:
             try:
                 pairs = solids.periodic_pairs(lo, hi, (0, 1, 2), PAIR_TOLERANCE * float(np.max(hi - lo)))
                 break

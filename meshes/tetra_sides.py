@@ -92,6 +92,20 @@ def legs_on_sides(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, 
     return worst > LEGS * gap
 
 
+def _uncovered(spans: list[tuple[float, float]], start: float, end: float) -> list[tuple[float, float]]:
+    """The stretches of [start, end] that no interval (a, b) of `spans` covers."""
+    out, at = [], start
+    for a, b in sorted(spans):
+        if a >= end:
+            break
+        if a > at:
+            out.append((at, a))
+        at = max(at, b)
+    if end > at:
+        out.append((at, end))
+    return out
+
+
 def _gaps(extents: np.ndarray, lo: float, length: float) -> list[tuple[float, float]]:
     """The gaps (start, end) [mm, from lo; start in [0, length)] between intervals (N, 2) [mm] on a
     circle of `length` starting at lo; none where the intervals leave no gap."""
@@ -99,12 +113,8 @@ def _gaps(extents: np.ndarray, lo: float, length: float) -> list[tuple[float, fl
         return []
     a = (extents[:, 0] - lo) % length
     spans = sorted(zip(a, a + extents[:, 1] - extents[:, 0]))
-    gaps, reach = [], spans[0][1]
-    for start, end in spans[1:] + [(spans[0][0] + length, spans[0][1] + length)]:
-        if start > reach:
-            gaps.append((reach % length, reach % length + start - reach))
-        reach = max(reach, end)
-    return gaps
+    gaps = _uncovered(spans, spans[0][1], spans[0][0] + length)
+    return [(s % length, s % length + e - s) for s, e in gaps]
 
 
 def _clear_middles(start: float, end: float, legs: np.ndarray, lo: float, length: float) -> list[float]:
@@ -112,16 +122,9 @@ def _clear_middles(start: float, end: float, legs: np.ndarray, lo: float, length
     the legs' extents (N, 2) [mm] at least half as wide as the widest; the gap's middle where the
     legs leave none clear."""
     a = (legs[:, 0] - lo) % length
-    cuts = sorted((s + k * length, s + k * length + w) for s, w in zip(a, legs[:, 1] - legs[:, 0]) for k in (-1, 0, 1)
-                  if s + k * length < end and s + k * length + w > start)
-    stretches, at = [], start
-    for s, e in cuts:
-        if s > at:
-            stretches.append((at, s))
-        at = max(at, e)
-    if end > at:
-        stretches.append((at, end))
-    if not cuts or not stretches:
+    stretches = _uncovered([(s + k * length, s + k * length + w) for s, w in zip(a, legs[:, 1] - legs[:, 0])
+                            for k in (-1, 0, 1)], start, end)
+    if not stretches:
         return [(start + end) / 2]
     widest = max(e - s for s, e in stretches)
     return [(s + e) / 2 for s, e in stretches if e - s >= widest / 2]
