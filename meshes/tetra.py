@@ -411,15 +411,79 @@ def _fit_curvature(textile: Textile, options: TetOptions, phase_of: dict[int, in
 
 def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
               folder: str):
-    """Build, mesh and read back the model (gmsh initialised, a model current). When the surface
-    mesh crosses itself (two skins that stray into the gap between them), the sections are traced
-    again with twice the points, up to RETRACE times and while that halves the crossings. The
-    surfaces are meshed finer where they lose a yarn's volume (_fit_curvature). Returns the arrays,
-    box, pairs, how many times the points were doubled and the elements per 2 pi of curvature."""
+    """Build, mesh and read back the model (gmsh initialised, a model current): the surfaces
+    (_traced), then the volume. Where gmsh's volume mesh fails on facets of a side of the box
+    across x or y, the box moves once along that axis, its sides there farthest from the edges of
+    the yarns running along them (tetra_sides.clear_of_edges), and the model is built again.
+    Returns the arrays, box, pairs, how many times the points were doubled and the elements per
+    2 pi of curvature."""
     import gmsh
 
-    before, move = np.inf, np.zeros(3)
     model = model_volumes(textile) * (1 - shrink) ** 2
+    lo, hi, pairs, phase_of, move, attempt, curvature = _traced(textile, options, gap, shrink, height, times, folder,
+                                                                np.zeros(3), model)
+    t = time.perf_counter()
+    try:
+        gmsh.model.mesh.generate(3)
+    except Exception as e:
+        axis = _side_of(str(e), lo, hi)
+        if axis is None:
+            raise
+        lo0, hi0 = lo - move, hi - move
+        sections = [solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
+                    for i in range(len(textile.yarns))]
+        tol = PAIR_TOLERANCE * float(np.max(hi - lo))
+        places = [d for d in tetra_sides.clear_of_edges(textile, sections, lo0, hi0, axis) if abs(d - move[axis]) > tol]
+        if not places:
+            raise
+        shifted = move.copy()
+        shifted[axis] = places[0]
+        log.warning("tet: gmsh's volume mesh failed on the box's side across %s (%s): the box moved by (%.4g, %.4g) "
+                    "mm, its sides there farthest from the edges of the yarns along them", "xy"[axis], e,
+                    shifted[0], shifted[1])
+        gmsh.model.remove()
+        gmsh.model.add(f"tet-{textile.name}")
+        lo, hi, pairs, phase_of, move, attempt, curvature = _traced(textile, options, gap, shrink, height, times,
+                                                                    folder, shifted, model)
+        t = time.perf_counter()
+        gmsh.model.mesh.generate(3)
+    for method in OPTIMISE:
+        gmsh.model.mesh.optimize(method)
+    times["volume_s"] = time.perf_counter() - t
+    log.info("tet: volume mesh and optimisation %.1f s", times["volume_s"])
+    return _mesh_arrays(phase_of, pairs), lo, hi, pairs, attempt, curvature
+
+
+def _side_of(message: str, lo: np.ndarray, hi: np.ndarray) -> int | None:
+    """The axis (0: x, 1: y) of the box's side that one of the surfaces a gmsh error names lies on
+    ("... on surface 4622 surface 3562"), or None."""
+    import re
+
+    import gmsh
+
+    tol = PAIR_TOLERANCE * float(np.max(hi - lo))
+    for tag in map(int, re.findall(r"surface (\d+)", message)):
+        try:
+            box = np.array(gmsh.model.getBoundingBox(2, tag))
+        except Exception:  # not a surface of the model (any more)
+            continue
+        for ax in (0, 1):
+            if box[ax + 3] - box[ax] < tol and min(abs(box[ax] - lo[ax]), abs(box[ax] - hi[ax])) < tol:
+                return ax
+    return None
+
+
+def _traced(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
+            folder: str, move: np.ndarray, model: np.ndarray):
+    """The surfaces meshed, with the box moved by `move` (_surfaces). When the surface mesh crosses
+    itself (two skins that stray into the gap between them), the sections are traced again with
+    twice the points, up to RETRACE times and while that halves the crossings. The surfaces are
+    meshed finer where they lose a yarn's volume (_fit_curvature; `model`: each yarn's volume
+    [mm^3]). Returns the box, pairs, volume tag -> phase, the move, how many times the points were
+    doubled and the elements per 2 pi of curvature."""
+    import gmsh
+
+    before = np.inf
     for attempt in range(RETRACE + 1):
         # a retrace keeps the box where it went
         lo, hi, pairs, phase_of, move = _surfaces(textile, options, gap, shrink, height, times, folder, 2**attempt,
@@ -444,13 +508,7 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         gmsh.model.remove()
         gmsh.model.add(f"tet-{textile.name}")
         before = len(hits)
-    t = time.perf_counter()
-    gmsh.model.mesh.generate(3)
-    for method in OPTIMISE:
-        gmsh.model.mesh.optimize(method)
-    times["volume_s"] = time.perf_counter() - t
-    log.info("tet: volume mesh and optimisation %.1f s", times["volume_s"])
-    return _mesh_arrays(phase_of, pairs), lo, hi, pairs, attempt, curvature
+    return lo, hi, pairs, phase_of, move, attempt, curvature
 
 
 def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
