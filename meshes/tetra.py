@@ -441,7 +441,11 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
         log.warning("tet: gmsh's volume mesh failed on the box's side across %s (%s): the box moved by (%.4g, %.4g) "
                     "mm, its sides there farthest from the edges of the yarns along them", "xy"[axis], e,
                     shifted[0], shifted[1])
-        gmsh.model.remove()
+        # a failed generate leaves gmsh's mesh lock held: every later mesh call would return at once
+        # ("I'm busy! Ask me that later"), meshing nothing. A new session releases it
+        gmsh.finalize()
+        gmsh.initialize(interruptible=False)
+        session(options)
         gmsh.model.add(f"tet-{textile.name}")
         lo, hi, pairs, phase_of, move, attempt, curvature = _traced(textile, options, gap, shrink, height, times,
                                                                     folder, shifted, model)
@@ -598,6 +602,15 @@ def tet_mesh(textile: Textile, options: TetOptions = TetOptions(), comm: MPI.Com
     return result
 
 
+def session(options: TetOptions) -> None:
+    """gmsh's options for a tet mesh that hold for its whole session."""
+    import gmsh
+
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("General.NumThreads", min(int(options.threads), 2))
+    gmsh.option.setNumber("Geometry.OCCParallel", 1)
+
+
 def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
     import gmsh
 
@@ -614,9 +627,7 @@ def _tet_mesh(textile: Textile, options: TetOptions) -> TetMesh:
         gmsh.initialize(interruptible=False)
     added = False
     try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("General.NumThreads", min(int(options.threads), 2))
-        gmsh.option.setNumber("Geometry.OCCParallel", 1)
+        session(options)
         gmsh.model.add(f"tet-{textile.name}")
         added = True
         with tempfile.TemporaryDirectory(prefix="tet-sizes-") as folder:

@@ -479,6 +479,14 @@ def test_a_volume_mesh_failed_on_a_side_moves_the_box_off_the_edges_of_the_yarns
             calls.append(dim)
             if len(calls) == 1:
                 side = next(tag for _, tag in gmsh.model.getEntities(2) if on_the_side(tag, loose_plain[0].cell.y0))
+                # first a failure of gmsh's own, which leaves its mesh lock held: a plane through
+                # the cell and past its sides, embedded in a volume
+                c = loose_plain[0].cell
+                plane = gmsh.model.occ.addRectangle(c.x0 - 1, c.y0 - 1, 0.2, c.lx + 2, c.ly + 2)
+                gmsh.model.occ.synchronize()
+                gmsh.model.mesh.embed(2, [plane], 3, gmsh.model.getEntities(3)[0][1])
+                with pytest.raises(Exception, match="facet|PLC|intersect"):
+                    generate(3)
                 raise Exception(f"Invalid boundary mesh (overlapping facets) on surface {side} surface {side}")
         return generate(dim)
 
