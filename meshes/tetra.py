@@ -426,14 +426,12 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     try:
         gmsh.model.mesh.generate(3)
     except Exception as e:
-        axis = _side_of(str(e), lo, hi)
+        tol = PAIR_TOLERANCE * float(np.max(hi - lo))
+        axis = _side_of(str(e), lo, hi, tol)
         if axis is None:
             raise
-        lo0, hi0 = lo - move, hi - move
-        sections = [solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
-                    for i in range(len(textile.yarns))]
-        tol = PAIR_TOLERANCE * float(np.max(hi - lo))
-        places = [d for d in tetra_sides.clear_of_edges(textile, sections, lo0, hi0, axis) if abs(d - move[axis]) > tol]
+        places = [d for d in tetra_sides.clear_of_edges(textile, _sections(textile, options, shrink), lo - move,
+                                                        hi - move, axis) if abs(d - move[axis]) > tol]
         if not places:
             raise
         shifted = move.copy()
@@ -458,14 +456,13 @@ def _generate(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     return _mesh_arrays(phase_of, pairs), lo, hi, pairs, attempt, curvature
 
 
-def _side_of(message: str, lo: np.ndarray, hi: np.ndarray) -> int | None:
+def _side_of(message: str, lo: np.ndarray, hi: np.ndarray, tol: float) -> int | None:
     """The axis (0: x, 1: y) of the box's side that one of the surfaces a gmsh error names lies on
-    ("... on surface 4622 surface 3562"), or None."""
+    ("... on surface 4622 surface 3562"), to tol [mm], or None."""
     import re
 
     import gmsh
 
-    tol = PAIR_TOLERANCE * float(np.max(hi - lo))
     for tag in map(int, re.findall(r"surface (\d+)", message)):
         try:
             box = np.array(gmsh.model.getBoundingBox(2, tag))
@@ -515,6 +512,12 @@ def _traced(textile: Textile, options: TetOptions, gap: float, shrink: float, he
     return lo, hi, pairs, phase_of, move, attempt, curvature
 
 
+def _sections(textile: Textile, options: TetOptions, shrink: float) -> list[np.ndarray]:
+    """Each yarn's section polygons over one period, as the skins are built (tetra_solids.yarn_sections)."""
+    return [solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
+            for i in range(len(textile.yarns))]
+
+
 def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, height: float, times: dict,
               folder: str, refine: int, move: np.ndarray):
     """The solids of the box (sections traced by refine x their points), their periodicity, sizes
@@ -528,8 +531,7 @@ def _surfaces(textile: Textile, options: TetOptions, gap: float, shrink: float, 
     lo0, hi0 = _box(textile, options, gap, shrink)
     estimate = check_size(lo0, hi0, options)
     z_pad = None if options.z_range is not None else gap / 2
-    sections = [solids.yarn_sections(textile, i, options.spacing, options.points, shrink)
-                for i in range(len(textile.yarns))]
+    sections = _sections(textile, options, shrink)
     legs = tetra_sides.legs_on_sides(textile, sections, lo0, hi0, options.spacing, gap)
     moves, tried = None, 0
     while True:
