@@ -41,6 +41,10 @@ MARGIN = 6
 # (The correction's stations, stations.py, follow turns too, but graded along the path: they move
 # every station of the satins and twills, and so their meshes.)
 TURN = np.radians(10.0)
+# Passes that leave out a station whose skin still folds with stations by spacing alone (a section
+# thicker than twice the radius it turns on, between two nodes: the leg fit's corners on
+# ortho_w2f3_binder1.375x0.3's gapped solve, where the fold was 124 crossings of the surface mesh)
+DROPS = 8
 # OCC's glue option for the last fragment (2, full: the arguments share whole faces and do not
 # intersect; the pieces lie in the box, and their cut faces are imprinted on its sides first)
 GLUE = 2
@@ -49,8 +53,9 @@ GLUE = 2
 def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink: float = 0.0) -> np.ndarray:
     """Yarn i's section polygons (M, points, 3) [mm] at stations at most `spacing` mm apart over its
     master nodes, and at most TURN apart in the path's direction where that does not fold the
-    skin (one period of a periodic yarn: its last section is exactly its first moved by the
-    period); each section scaled about its centreline point by (1 - shrink) (0: as modelled)."""
+    skin; a station whose skin folds even so is left out, the skin ruled across the turn (one
+    period of a periodic yarn: its last section is exactly its first moved by the period); each
+    section scaled about its centreline point by (1 - shrink) (0: as modelled)."""
     yarn = textile.yarns[i]
 
     def sections(s: np.ndarray) -> np.ndarray:
@@ -64,6 +69,12 @@ def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink:
     if len(folded):  # those segments keep their stations by spacing alone
         plain = yarn.stations(spacing, minimum_per_segment=1)
         s = np.sort(np.concatenate([s[~np.isin(np.floor(s), folded)], plain[np.isin(np.floor(plain), folded)]]))
+        out = sections(s)
+    for _ in range(DROPS):  # a fold left between two stations: the later one left out, never an end
+        folded = np.flatnonzero(_folds(out))
+        if not len(folded) or len(s) < 4:
+            break
+        s = np.delete(s, np.where(folded + 1 < len(s) - 1, folded + 1, folded))
         out = sections(s)
     if yarn.periodic:
         out[-1] = out[0] + yarn.period
