@@ -57,25 +57,19 @@ def yarn_sections(textile: Textile, i: int, spacing: float, points: int, shrink:
     period of a periodic yarn: its last section is exactly its first moved by the period); each
     section scaled about its centreline point by (1 - shrink) (0: as modelled)."""
     yarn = textile.yarns[i]
-
-    def sections(s: np.ndarray) -> np.ndarray:
-        pos, _, up, side = yarn.frames(s)
-        sec = yarn.section_points(s, points) * (1.0 - shrink)
-        return pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
-
     s = yarn.stations(spacing, minimum_per_segment=1, turn=TURN)
-    out = sections(s)
+    out = yarn.section_polygons(s, points, 1.0 - shrink)
     folded = np.unique(np.floor(s[:-1][_folds(out)]))
     if len(folded):  # those segments keep their stations by spacing alone
         plain = yarn.stations(spacing, minimum_per_segment=1)
         s = np.sort(np.concatenate([s[~np.isin(np.floor(s), folded)], plain[np.isin(np.floor(plain), folded)]]))
-        out = sections(s)
+        out = yarn.section_polygons(s, points, 1.0 - shrink)
     for _ in range(DROPS):  # a fold left between two stations: the later one left out, never an end
         folded = np.flatnonzero(_folds(out))
         if not len(folded) or len(s) < 4:
             break
         s = np.delete(s, np.where(folded + 1 < len(s) - 1, folded + 1, folded))
-        out = sections(s)
+        out = yarn.section_polygons(s, points, 1.0 - shrink)
     if yarn.periodic:
         out[-1] = out[0] + yarn.period
     return out

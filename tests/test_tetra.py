@@ -372,9 +372,7 @@ def test_stations_follow_the_turns_where_the_skin_does_not_fold():
         return Yarn(nodes, ConstantSection(Ellipse(0.6, 0.2)), periodic=False, name="binder")
 
     def sections(y, s):
-        pos, _, up, side = y.frames(s)
-        sec = y.section_points(s, 48)
-        return pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+        return y.section_polygons(s, 48)
 
     tight, wide = yarn(0.25), yarn(0.29)
     plain, fine = tight.stations(0.25, 1), tight.stations(0.25, 1, solids.TURN)
@@ -404,9 +402,7 @@ def test_a_station_whose_skin_folds_between_nodes_is_left_out():
     tight = Yarn([[0, 0, 0], [1, 0, 0], [1.1, 0.1, 0], [1.1, 1.1, 0]], ConstantSection(Ellipse(0.6, 0.2)),
                  periodic=False, name="binder")
     plain = tight.stations(0.25, 1)
-    pos, _, up, side = tight.frames(plain)
-    sec = tight.section_points(plain, 48)
-    assert solids._folds(pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]).any()
+    assert solids._folds(tight.section_polygons(plain, 48)).any()
     kept = solids.yarn_sections(SimpleNamespace(yarns=[tight]), 0, 0.25, 48)
     assert not solids._folds(kept).any() and len(kept) < len(plain)
     ends = tight.frames(plain[[0, -1]])[0]

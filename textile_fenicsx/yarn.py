@@ -236,7 +236,11 @@ class Yarn:
         station m. For a periodic yarn the last station repeats the first, shifted by the period.
         """
         s = self.stations(spacing, per_segment)
+        return self.section_polygons(s, n_points), s
+
+    def section_polygons(self, s, n_points: int, scale: float = 1.0) -> np.ndarray:
+        """Section polygons (M, n_points, 3) [mm] at parameters s, each scaled about its centreline
+        point by `scale`."""
         pos, _, up, side = self.frames(s)
-        sec = self.section_points(s, n_points)
-        verts = pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
-        return verts, s
+        sec = self.section_points(s, n_points) * scale
+        return pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
