@@ -32,33 +32,44 @@ class MidAndThickness:
 
     def __init__(self, pattern: FixedPattern, numbering: Periodicity):
         self.comm, self.start, self.n_local, self.n = pattern.comm, pattern.start, pattern.n_local, pattern.n_cols
-        nnz = len(pattern.indices)
-        rows = self.start + np.repeat(np.arange(self.n_local, dtype=np.int64), np.diff(pattern.indptr))
-        cols = pattern.indices.astype(np.int64)
-        (rb, rt, rs), (cb, ct, cs) = numbering.surface_pairs(rows), numbering.surface_pairs(cols)
+        nnz, counts = len(pattern.indices), np.diff(pattern.indptr)
+        own = np.arange(self.start, self.start + self.n_local, dtype=np.int64)
+        b, t, s = numbering.surface_pairs(own)  # per row, then per entry of the pattern
+        rb, rt, rs = (np.repeat(a, counts) for a in (b, t, s))
+        cb, ct, cs = numbering.surface_pairs(pattern.indices)
         # entry (r, c) of K adds T[r, i] K[r, c] T[c, j] at (i, j) for i in {w_r, dt_r}, j in {w_c, dt_c}:
         # the four quadrants of its node pair's block, found once per block (nnz keys sorted, not 4 nnz)
         blocks, first, inverse = np.unique(rb * np.int64(self.n) + cb, return_index=True, return_inverse=True)
-        quadrants = [(rb, cb), (rb, ct), (rt, cb), (rt, ct)]
-        keys = np.concatenate([(r[first] - self.start) * np.int64(self.n) + c[first] for r, c in quadrants])
+        keys = np.concatenate([(r[first] - self.start) * np.int64(self.n) + c[first]
+                               for r, c in ((rb, cb), (rb, ct), (rt, cb), (rt, ct))])
+        nb, small = len(blocks), np.int32 if 4 * nnz < 2**31 else np.int64  # (indices into 4 nnz at most)
+        del blocks, first, cb, ct
         order = np.argsort(keys)
-        unique, rank = keys[order], np.empty(len(keys), np.int64)
-        rank[order] = np.arange(len(keys))
-        target = np.concatenate([rank[q * len(blocks) + inverse] for q in range(4)])
-        coefficients = np.concatenate([np.ones(nnz), cs / 2, rs / 2, rs * cs / 4])
-        M = scipy.sparse.csr_matrix((coefficients, (target, np.tile(np.arange(nnz), 4))), shape=(len(unique), nnz))
+        unique, rank = keys[order], np.empty(len(keys), small)
+        rank[order] = np.arange(len(keys), dtype=small)
+        del keys, order
+        # M^T, one row per entry of K: its four targets in (w, dt), and T's coefficients there (no
+        # triplets to sort: each K entry's row holds its four terms, those landing in entries that
+        # are exact zeros left out)
+        target = np.stack([rank[q * nb + inverse] for q in range(4)], axis=1)
+        coefficients = np.stack([np.ones(nnz), cs / 2, rs / 2, rs * cs / 4], axis=1)
+        del rank, inverse, rb, rt, rs, cs
         # an entry of (w, dt) is kept where the constant part leaves a value or a variable one can
         # arrive (contact weights, the compaction law's Hessian); the diagonal always
-        touched = np.zeros(nnz)
-        touched[np.unique(pattern.positions)] = 1.0
-        keep = (M @ pattern.base != 0) | (abs(M) @ touched > 0) | (unique // self.n + self.start == unique % self.n)
-        self.M = M[keep]
+        touched = np.zeros(nnz, bool)
+        touched[pattern.positions] = True
+        keep = (np.bincount(target.ravel(), (coefficients * pattern.base[:, None]).ravel(), len(unique)) != 0) \
+            | (np.bincount(target[touched].ravel(), minlength=len(unique)) > 0) \
+            | (unique // self.n + self.start == unique % self.n)
+        on = keep[target]
+        renumbered = (np.cumsum(keep) - 1).astype(small)
+        indptr = np.concatenate([[0], np.cumsum(on.sum(axis=1))]).astype(small)
+        MT = scipy.sparse.csr_matrix((coefficients[on], renumbered[target[on]], indptr), shape=(nnz, int(keep.sum())))
+        self.M = MT.T.tocsr()  # (each row's terms in the order of the pattern, as they are added)
         unique = unique[keep]
         row_starts = np.arange(self.n_local + 1, dtype=np.int64) * self.n
         self.indptr = np.searchsorted(unique, row_starts).astype(PETSc.IntType)
         self.indices = (unique % self.n).astype(PETSc.IntType)
-        own = np.arange(self.start, self.start + self.n_local, dtype=np.int64)
-        b, t, s = numbering.surface_pairs(own)
         self.bottom, self.top = (own[s < 0] - self.start), (t[s < 0] - self.start)
         assert np.array_equal(b[s < 0], own[s < 0])
 
