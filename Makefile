@@ -64,7 +64,7 @@ bench:
 	@texgen=$$(bench/texgen_env.sh --fenicsx-env 2>/dev/null || true); \
 	$(ENV) env TEXTILE_FENICSX_TEXGEN_PYTHON=$$texgen python3 bench/bench.py --out $(OUT)/bench.json $(if $(QUICK),--quick)
 	$(ENV) python3 bench/volume_bench.py --out $(OUT)/volume_bench.json $(if $(QUICK),--kinds voxel --ranks 1)
-	$(ENV) python3 bench/compaction_bench.py --out $(OUT)/compaction_bench.json $(if $(QUICK),--seeds 0.5)
+	$(ENV) python3 bench/compaction_bench.py --out $(OUT)/compaction_bench.json $(if $(QUICK),--seeds 0.5 --repeat 1)
 
 bench-outer:
 	$(ENV) python3 bench/outer_solve.py
