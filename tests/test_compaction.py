@@ -180,6 +180,25 @@ def test_a_plain_weave_pressed_to_vf_half_passes_its_check_with_its_fibres_kept(
 
 
 @pytest.mark.mpi
+def test_a_yarn_fibre_fraction_given_is_the_laws_relaxed_fraction():
+    # `solve --yarn-vf V` (fibres.with_yarn_vf): every yarn's fibres fill V of its mean section, so
+    # V is the law's relaxed fibre fraction (the curve's densest node at rest) and the metrics'
+    # yarn_vf before; the fibres' volume in the cell scales with V against the default 0.65's
+    # (the same sections and lengths). Before, --yarn-vf reached only the volume mesh and the
+    # compaction pressed yarns of 0.65
+    from textile_fenicsx.compaction import fibre_volume
+    from textile_fenicsx.fibres import DEFAULT_YARN_VF, with_yarn_vf
+
+    model = build("plain")
+    r = run(with_yarn_vf(model, 0.55), Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.45)))
+    assert r.compaction.reason is None and r.verdict["passed"], r.verdict["failures"]
+    assert r.compaction.densest[0] == pytest.approx(0.55, rel=1e-12)
+    assert r.metrics["before"]["yarn_vf"] == pytest.approx([0.55] * len(model.yarns), rel=1e-12)
+    assert r.compaction.fibre_volume == pytest.approx(fibre_volume(model) * 0.55 / DEFAULT_YARN_VF, rel=1e-12)
+    assert r.compaction.vf[-1] == pytest.approx(0.45, rel=1e-12)
+
+
+@pytest.mark.mpi
 def test_the_pressure_at_the_target_does_not_depend_on_the_steps_taken_to_it():
     # the least energy at a mould's thickness is one number, and so is its derivative there, the
     # platens' pressure: pressed in 1 or in 3 steps, the plain weave reaches Vf 0.5 at one pressure
@@ -312,6 +331,8 @@ def test_compaction_input_errors_exit_2(tmp_path):
     assert bad.returncode == 2 and "expected DX,DY pairs in mm" in bad.stderr
     bad = cli("plain", "--plies", 0)
     assert bad.returncode == 2 and "plies" in bad.stderr
+    bad = cli("plain", "--compaction", 50, "--vf", 0.5, "--yarn-vf", 0.95)
+    assert bad.returncode == 2 and "--yarn-vf" in bad.stderr and "0.9069" in bad.stderr
     assert not (tmp_path / "out").exists()
     # `build --plies` writes the stack: its models read back as 2 plies (the .tg3 as TexGen's
     # CTextileLayered), and a bad offset is named there too
@@ -325,6 +346,22 @@ def test_compaction_input_errors_exit_2(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "textile_fenicsx", "build", "plain", "--plies", "2", "--ply-offsets",
                           "0,0", "--out", tmp_path / "bad"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "give 2 in-plane offsets" in bad.stderr and not (tmp_path / "bad").exists()
+
+
+@pytest.mark.serial
+def test_solve_passes_its_yarn_fibre_fraction_to_the_compaction(tmp_path):
+    # the command's --yarn-vf reaches the compaction law (commands.solve: fibres.with_yarn_vf on the
+    # model read): the curve starts at the given fraction, not at the default 0.65
+    import json
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "textile_fenicsx", "solve", "plain", "--compaction", "50", "--vf", "0.45",
+                        "--yarn-vf", "0.55", "--no-figures", "--out", str(tmp_path / "out")], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    curve = json.loads((tmp_path / "out" / "compaction.json").read_text())
+    assert curve["densest"][0] == pytest.approx(0.55, rel=1e-12) and curve["vf"][-1] == pytest.approx(0.45)
 
 
 # ---- plies (plies.py) ----

@@ -11,10 +11,12 @@ import json
 import sys
 import time
 from contextlib import contextmanager, nullcontext
+from dataclasses import replace
 from pathlib import Path
 
 from textile_fenicsx import __version__, limits, volume_commands
 from textile_fenicsx.errors import TextileError
+from textile_fenicsx.fibres import with_yarn_vf
 from textile_fenicsx.files import claim_output, staged_folder
 
 __all__ = ["build", "load_input", "mesh", "report", "solve", "versions"]
@@ -206,8 +208,10 @@ def solve(args) -> int:
     _check_repeat(args)
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     t = time.perf_counter()
-    textile = _repeated(_stacked(load_input(args.input), args), args, settings.mesh, comm.size,
-                        settings.solver.bytes_per_dof)
+    textile = _repeated(_stacked(with_yarn_vf(load_input(args.input), args.yarn_vf), args), args, settings.mesh,
+                        comm.size, settings.solver.bytes_per_dof)
+    if volume is not None and settings.compaction is not None:  # the pressed yarns are denser: their
+        volume = replace(volume, yarn_vf=None)  # fibre data (--yarn-vf's fibres, kept) gives their fraction
     settings, volume = volume_commands.with_gap(settings, textile, volume, args.min_gap)
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]

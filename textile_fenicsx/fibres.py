@@ -16,10 +16,13 @@ import logging
 import math
 import re
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from textile_fenicsx import limits
 from textile_fenicsx.errors import FormatError, TextileError
+
+if TYPE_CHECKING:  # (textile.py imports this module)
+    from textile_fenicsx.textile import Textile
 
 log = logging.getLogger(__name__)
 
@@ -167,3 +170,19 @@ def from_dict(d: Any, where: str) -> Fibres:
 # The intra-yarn fibre volume fraction assumed for a yarn without fibre data (with a warning): a
 # typical packing of a tow in a woven fabric, whose measured values lie around 0.6-0.7.
 DEFAULT_YARN_VF = 0.65
+
+
+def with_yarn_vf(textile: Textile, vf: float | None) -> Textile:
+    """The model with every yarn's fibre data replaced by fibres that fill vf of its mean section
+    [-] (the fibre area vf x A; `solve --yarn-vf`): the compaction law's phi0, the fibre volume its
+    target Vf counts, the metrics' Vf and the corrected model's fibres then all read vf alike.
+    None: the model as it is."""
+    if vf is None:
+        return textile
+    from dataclasses import replace
+
+    from textile_fenicsx.metrics import mean_section_area
+
+    limits.check_range("yarn fibre volume fraction (--yarn-vf)", vf, 1e-6, math.pi / (2 * math.sqrt(3)))
+    return replace(textile, yarns=[replace(y, fibres=Fibres(area=vf * mean_section_area(y, textile.resolution)))
+                                   for y in textile.yarns])

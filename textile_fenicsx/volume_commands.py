@@ -36,7 +36,8 @@ def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
                    help="element size [mm] (default 0.2 for voxel, 0.35 for tet)")
     p.add_argument("--yarn-vf", type=float, metavar="V",
                    help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
-                   "(default: from the fibre data; 0.65 with a warning where there is none)")
+                   "(on solve also the compaction law's relaxed fraction and the metrics' Vf; default: from the "
+                   "fibre data; 0.65 with a warning where there is none)")
     if not prefix:
         p.add_argument("--z-range", type=float, nargs=2, metavar=("ZMIN", "ZMAX"),
                        help="the cell through the thickness [mm] (default: the yarns' own extent; tet: padded by "
