@@ -170,6 +170,14 @@ def from_dict(d: Any, where: str) -> Fibres:
 # The intra-yarn fibre volume fraction assumed for a yarn without fibre data (with a warning): a
 # typical packing of a tow in a woven fabric, whose measured values lie around 0.6-0.7.
 DEFAULT_YARN_VF = 0.65
+# The densest packing of equal round fibres, hexagonal [-]: the bound of any intra-yarn fraction
+# (the volume mesh's, --yarn-vf's) and the compaction law's default maximum
+HEXAGONAL = math.pi / (2 * math.sqrt(3))
+
+
+def check_yarn_vf(vf: float) -> float:
+    """A yarn fibre volume fraction given for every yarn (--yarn-vf), checked against HEXAGONAL."""
+    return limits.check_range("yarn fibre volume fraction (--yarn-vf)", vf, 1e-6, HEXAGONAL)
 
 
 def with_yarn_vf(textile: Textile, vf: float | None) -> Textile:
@@ -183,6 +191,6 @@ def with_yarn_vf(textile: Textile, vf: float | None) -> Textile:
 
     from textile_fenicsx.metrics import mean_section_area
 
-    limits.check_range("yarn fibre volume fraction (--yarn-vf)", vf, 1e-6, math.pi / (2 * math.sqrt(3)))
+    check_yarn_vf(vf)
     return replace(textile, yarns=[replace(y, fibres=Fibres(area=vf * mean_section_area(y, textile.resolution)))
                                    for y in textile.yarns])

@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from textile_fenicsx import limits
 from textile_fenicsx.errors import MeshError, TextileError
+from textile_fenicsx.fibres import HEXAGONAL, check_yarn_vf
 from textile_fenicsx.meshes.volume import DEFAULT_SIZE, KINDS, VolumeMesh, cell_box
 from textile_fenicsx.parallel import wait_asleep
 from textile_fenicsx.textile import Textile
@@ -26,9 +27,6 @@ if TYPE_CHECKING:
     from textile_fenicsx.volume_files import VolumeFields
 
 log = logging.getLogger(__name__)
-
-# The densest packing of parallel round fibres (hexagonal): no yarn can hold more.
-MAX_PACKING = np.pi / (2 * np.sqrt(3))
 
 
 @dataclass(frozen=True)
@@ -63,7 +61,7 @@ class VolumeOptions:
         if self.gap is not None:
             limits.check_length("tet gap", self.gap)
         if self.yarn_vf is not None:
-            limits.check_range("yarn fibre volume fraction (--yarn-vf)", self.yarn_vf, 1e-6, MAX_PACKING)
+            check_yarn_vf(self.yarn_vf)
         if self.memory_limit is not None:
             limits.check_range("memory limit", self.memory_limit, 1e-6, limits.MAX_MEMORY_GB, " GB")
 
@@ -77,9 +75,9 @@ def fibre_fractions(textile: Textile, options: VolumeOptions) -> list[float]:
 
     vf, _ = yarn_fibre_fractions(textile)
     for y, v in zip(textile.yarns, vf):
-        if v > MAX_PACKING:
+        if v > HEXAGONAL:
             raise TextileError(f"{y.name}: its fibre data give an intra-yarn fibre volume fraction of {v:.3f}, above "
-                               f"the densest packing of round fibres ({MAX_PACKING:.3f}); check its fibre data "
+                               f"the densest packing of round fibres ({HEXAGONAL:.3f}); check its fibre data "
                                "(fibres per yarn, diameter, area, linear density, density) or give --yarn-vf")
     return vf
 

@@ -6,6 +6,7 @@ import numpy as np
 
 import dolfinx
 from textile_fenicsx.errors import TextileError, check_positive
+from textile_fenicsx.fibres import HEXAGONAL
 from textile_fenicsx.limits import MAX_ITERATIONS, check_count
 from textile_fenicsx.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE
 from textile_fenicsx.solver.linear import DIRECT_LDLT, OUT_OF_CORE
@@ -13,7 +14,6 @@ from textile_fenicsx.solver.linear import DIRECT_LDLT, OUT_OF_CORE
 __all__ = ["METHODS", "Compaction", "Mould", "PlateParameters", "Solution", "SolverOptions"]
 
 METHODS = ("exact", "penalty")
-HEXAGONAL = float(np.pi / (2 * np.sqrt(3)))  # the densest packing of equal circles [-]
 
 
 @dataclass(frozen=True)
