@@ -11,7 +11,8 @@ yarn surfaces) and compared with the initial one. A run passes when
   cell, at constant area); the volume is not held across a free edge (yarns run in and out of the
   box) nor for a yarn with legs (legs.py), whose sections' areas are;
 - every yarn, legs and free edges included, keeps the volume per length its own surface encloses
-  (tube(): the divergence theorem over its tube, over the length of its path) within `volume`,
+  (tube(): the divergence theorem over its tube, over the length of its sections' centroids'
+  line, the path where they are centred on it) within `volume`,
   and folds over itself (sections swept backwards on the inside of a bend tighter than they are
   thick, a volume the sections' areas count and space does not) by at most `fold` of its volume
   more than in the input;
@@ -136,7 +137,8 @@ def _leg_hint(initial: Textile, pen0: dict, worst: dict | None) -> str:
 class Tube:
     """A yarn's surface over its master nodes as the metrics see it (its resolution's stations and
     section points), measured: volume [mm^3] enclosed (the divergence theorem, the end sections
-    closing it), length [mm] of the path through the stations, folded [mm^3]: the volume its
+    closing it), length [mm] of the line through its sections' centroids at the stations (the
+    fibres' mean line; the path's own where the sections are centred on it), folded [mm^3]: the volume its
     sections sweep backwards, at [mm] the path point of the worst fold (None for none); s: the
     parameters along the path where it was measured and back [mm^3]: the volume swept backwards
     between each two (bend_fit.py opens the bends where it is)."""
@@ -183,8 +185,23 @@ def tube(yarn, resolution) -> Tube:
                     + np.linalg.norm(np.cross(b - pos[1:, None], b1 - pos[1:, None]), axis=2))
     back = (wedge * _backwards(np.broadcast_to(apex, edge.shape), edge)).sum(axis=1)
     m = int(np.argmax(back))
-    length = float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1)))
+    # per length of the centroids' line: by Pappus a swept section encloses its area times the
+    # distance its centroid travels, so where a model's sections sit off its path (TexGen's refined
+    # Hybrid sections, flat at the path) a bending path holds A (1 - k c) per length of itself and
+    # A per length of the centroids; the correction puts the path on the centroids (DESIGN.md 7)
+    length = float(np.sum(np.linalg.norm(np.diff(_centroids(verts), axis=0), axis=1)))
     return Tube(volume, length, float(back.sum()), tuple(map(float, pos[m])) if back[m] > 0 else None, s, back)
+
+
+def _centroids(rings: np.ndarray) -> np.ndarray:
+    """The area centroids (S, 3) of planar polygons given by their vertices (S, n, 3)."""
+    middle = rings.mean(axis=1, keepdims=True)
+    p, q = rings - middle, np.roll(rings, -1, axis=1) - middle
+    fan = 0.5 * np.cross(p, q)  # the vector areas of the triangles (middle, p, q)
+    normal = fan.sum(axis=1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    area = np.einsum("snj,sj->sn", fan, normal)
+    return middle[:, 0] + np.einsum("sn,snj->sj", area, (p + q) / 3) / area.sum(axis=1, keepdims=True)
 
 
 def _backwards(apex: np.ndarray, edge: np.ndarray) -> np.ndarray:
