@@ -184,6 +184,21 @@ def test_a_yarn_whose_sections_sit_off_its_path_holds_their_area_per_length_of_t
 
 
 @pytest.mark.serial
+def test_the_centroids_of_sections_and_of_sections_with_no_area():
+    # the centroids' line a yarn's volume per length is measured along: a triangle's centroid is
+    # the mean of its corners (a repeated corner adds no area); a section shrunk to a point has
+    # none, and the path stands in for it (not a 0 / 0 that would make the check pass on NaN)
+    from textile_fenicsx.verify import _centroids
+
+    square = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    triangle = [[0, 0, 1], [3, 0, 1], [0, 3, 1], [0, 3, 1]]
+    point = [[5, 5, 5]] * 4
+    path = np.full((3, 3), 9.0)
+    c = _centroids(np.array([square, triangle, point], float), path)
+    assert np.allclose(c, [[0.5, 0.5, 0.0], [1.0, 1.0, 1.0], [9.0, 9.0, 9.0]], atol=1e-15)
+
+
+@pytest.mark.serial
 def test_the_check_refuses_a_yarn_that_folds_over_and_names_it():
     # issue 27: TexGen's orthogonal binders came out of the correction folded at their corners,
     # every section's area kept (the check passed them): the check now measures the fold, and its

@@ -189,19 +189,24 @@ def tube(yarn, resolution) -> Tube:
     # distance its centroid travels, so where a model's sections sit off its path (TexGen's refined
     # Hybrid sections, flat at the path) a bending path holds A (1 - k c) per length of itself and
     # A per length of the centroids; the correction puts the path on the centroids (DESIGN.md 7)
-    length = float(np.sum(np.linalg.norm(np.diff(_centroids(verts), axis=0), axis=1)))
+    length = float(np.sum(np.linalg.norm(np.diff(_centroids(verts, pos), axis=0), axis=1)))
     return Tube(volume, length, float(back.sum()), tuple(map(float, pos[m])) if back[m] > 0 else None, s, back)
 
 
-def _centroids(rings: np.ndarray) -> np.ndarray:
-    """The area centroids (S, 3) of planar polygons given by their vertices (S, n, 3)."""
+def _centroids(rings: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """The area centroids (S, 3) of planar polygons given by their vertices (S, n, 3); the path's
+    point (S, 3) where a polygon has no area (a section shrunk to a point or a line)."""
     middle = rings.mean(axis=1, keepdims=True)
     p, q = rings - middle, np.roll(rings, -1, axis=1) - middle
     fan = 0.5 * np.cross(p, q)  # the vector areas of the triangles (middle, p, q)
     normal = fan.sum(axis=1)
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    size = np.linalg.norm(normal, axis=1)
+    normal /= np.maximum(size, 1e-300)[:, None]
     area = np.einsum("snj,sj->sn", fan, normal)
-    return middle[:, 0] + np.einsum("sn,snj->sj", area, (p + q) / 3) / area.sum(axis=1, keepdims=True)
+    total = area.sum(axis=1)
+    flat = ~(total > 1e-12 * np.maximum(np.ptp(rings, axis=1).max(axis=1), 1e-300) ** 2)
+    centroid = middle[:, 0] + np.einsum("sn,snj->sj", area, (p + q) / 3) / np.where(flat, 1.0, total)[:, None]
+    return np.where(flat[:, None], path, centroid)
 
 
 def _backwards(apex: np.ndarray, edge: np.ndarray) -> np.ndarray:
