@@ -26,7 +26,7 @@ import numpy as np
 from textile_fenicsx.errors import GeometryError, TextileError, check_positive
 from textile_fenicsx.fields import evaluate
 from textile_fenicsx.limits import MAX_NODES, MAX_NODES_PER_YARN, MAX_SURFACE_POINTS
-from textile_fenicsx.sections import Polygon
+from textile_fenicsx.sections import Polygon, polygon_centroids
 from textile_fenicsx.stations import budgets, stations
 from textile_fenicsx.textile import Cell, Resolution, Textile
 from textile_fenicsx.verify import self_intersecting
@@ -305,15 +305,6 @@ def _areas(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(u * np.roll(v, -1, axis=1) - np.roll(u, -1, axis=1) * v, axis=1)
 
 
-def centroids(polys: np.ndarray) -> np.ndarray:
-    """Centroids (S, 2) of the polygons (S, n, 2) (of their areas, not of their points)."""
-    u, v = polys[..., 0], polys[..., 1]
-    un, vn = np.roll(u, -1, axis=1), np.roll(v, -1, axis=1)
-    cross = u * vn - un * v
-    six_area = 3.0 * np.sum(cross, axis=1)
-    return np.column_stack((np.sum((u + un) * cross, axis=1), np.sum((v + vn) * cross, axis=1))) / six_area[:, None]
-
-
 def _centred(probe: Yarn, pos: np.ndarray, polys: np.ndarray, periodic: bool,
              passes: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """The stations moved onto their sections' centroids, the sections cut from the same surface
@@ -334,14 +325,14 @@ def _centred(probe: Yarn, pos: np.ndarray, polys: np.ndarray, periodic: bool,
     the new path cuts the old tube (_cut). That oblique cut holds A cos(dc/ds): the section is
     thickened back to A about its centroid (by dc/ds squared over 2, at most 0.7 % on the
     polygon weave)."""
-    if np.max(np.abs(centroids(polys)[:, 1])) < 1e-12:  # on the path already (a leg, a straight yarn)
+    if np.max(np.abs(polygon_centroids(polys)[:, 1])) < 1e-12:  # on the path already (a leg, a straight yarn)
         return pos, polys
     target = _areas(polys[..., 0], polys[..., 1])
     _, _, up, side = probe.frames(np.arange(len(pos), dtype=float))
     surface = (probe, polys)
     moved, frame, shift = pos, (up, side), np.zeros(len(pos))
     for _ in range(passes):
-        c = centroids(polys)
+        c = polygon_centroids(polys)
         moved = moved + c[:, 1:] * frame[0]
         shift += c[:, 1]
         if periodic:  # the last station repeats the first
@@ -355,7 +346,7 @@ def _centred(probe: Yarn, pos: np.ndarray, polys: np.ndarray, periodic: bool,
     # legs overlap their neighbours)
     crossed = self_intersecting(polys)
     polys[crossed] = surface[1][crossed] - np.stack((np.zeros(crossed.sum()), shift[crossed]), axis=-1)[:, None, :]
-    c = centroids(polys)
+    c = polygon_centroids(polys)
     grow = (target / _areas(polys[..., 0], polys[..., 1]))[:, None]
     polys = np.stack((polys[..., 0], c[:, 1:] + (polys[..., 1] - c[:, 1:]) * grow), axis=-1)
     if periodic:

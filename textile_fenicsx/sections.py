@@ -305,6 +305,19 @@ def polygon_area(points: np.ndarray) -> float:
     return _signed_area(np.asarray(points, float))
 
 
+def polygon_centroids(polys: np.ndarray) -> np.ndarray:
+    """Centroids (S, 2) of the polygons (S, n, 2), of their areas, not of their points; (0, 0), the
+    section plane's origin (the path), for a polygon with no area (shrunk to a point or a line)."""
+    u, v = polys[..., 0], polys[..., 1]
+    un, vn = np.roll(u, -1, axis=1), np.roll(v, -1, axis=1)
+    cross = u * vn - un * v
+    six_area = 3.0 * np.sum(cross, axis=1)
+    extent = np.maximum(np.ptp(u, axis=1), np.ptp(v, axis=1))
+    flat = ~(np.abs(six_area) > 1e-12 * extent**2)
+    c = np.column_stack((np.sum((u + un) * cross, axis=1), np.sum((v + vn) * cross, axis=1)))
+    return np.where(flat[:, None], 0.0, c / np.where(flat, 1.0, six_area)[:, None])
+
+
 def blend(p1: np.ndarray, p2: np.ndarray, u, ramped: bool = False, polar: bool = False) -> np.ndarray:
     """Blend two sampled sections point by point (TexGen's interpolated yarn sections).
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from textile_fenicsx.metrics import measure
-from textile_fenicsx.sections import Polygon
+from textile_fenicsx.sections import Polygon, polygon_centroids
 from textile_fenicsx.stations import budgets, stations
 from textile_fenicsx.textile import Textile
 
@@ -162,7 +162,7 @@ def tube(yarn, resolution) -> Tube:
     Each point of the section must advance along the path from one station to the next (the mean
     of their tangents); where one goes back, the wedge of section it bounds is folded."""
     verts, s = yarn.tube(resolution.spacing, resolution.section_points, resolution.per_segment)
-    pos, tan = yarn.centreline(s)
+    pos, tan, up, side = yarn.frames(s)
     a, b = verts[:-1], verts[1:]
     a1, b1 = np.roll(a, -1, axis=1), np.roll(b, -1, axis=1)
 
@@ -189,24 +189,9 @@ def tube(yarn, resolution) -> Tube:
     # distance its centroid travels, so where a model's sections sit off its path (TexGen's refined
     # Hybrid sections, flat at the path) a bending path holds A (1 - k c) per length of itself and
     # A per length of the centroids; the correction puts the path on the centroids (DESIGN.md 7)
-    length = float(np.sum(np.linalg.norm(np.diff(_centroids(verts, pos), axis=0), axis=1)))
+    c = polygon_centroids(yarn.section_points(s, resolution.section_points))
+    length = float(np.sum(np.linalg.norm(np.diff(pos + c[:, :1] * side + c[:, 1:] * up, axis=0), axis=1)))
     return Tube(volume, length, float(back.sum()), tuple(map(float, pos[m])) if back[m] > 0 else None, s, back)
-
-
-def _centroids(rings: np.ndarray, path: np.ndarray) -> np.ndarray:
-    """The area centroids (S, 3) of planar polygons given by their vertices (S, n, 3); the path's
-    point (S, 3) where a polygon has no area (a section shrunk to a point or a line)."""
-    middle = rings.mean(axis=1, keepdims=True)
-    p, q = rings - middle, np.roll(rings, -1, axis=1) - middle
-    fan = 0.5 * np.cross(p, q)  # the vector areas of the triangles (middle, p, q)
-    normal = fan.sum(axis=1)
-    size = np.linalg.norm(normal, axis=1)
-    normal /= np.maximum(size, 1e-300)[:, None]
-    area = np.einsum("snj,sj->sn", fan, normal)
-    total = area.sum(axis=1)
-    flat = ~(total > 1e-12 * np.maximum(np.ptp(rings, axis=1).max(axis=1), 1e-300) ** 2)
-    centroid = middle[:, 0] + np.einsum("sn,snj->sj", area, (p + q) / 3) / np.where(flat, 1.0, total)[:, None]
-    return np.where(flat[:, None], path, centroid)
 
 
 def _backwards(apex: np.ndarray, edge: np.ndarray) -> np.ndarray:
