@@ -215,6 +215,27 @@ def test_the_pressure_at_the_target_does_not_depend_on_the_steps_taken_to_it():
 
 
 @pytest.mark.mpi
+def test_steps_settled_to_the_step_tolerance_take_fewer_newton_steps_and_keep_the_curve(monkeypatch):
+    # compaction.STEP_TOL: a step before the last stops when its yarns move less than 1e-5 mm
+    # (not the solver's 1e-6) and its forces balance (DUAL_RTOL; else it goes on to 1e-6). The
+    # plain weave to Vf 0.5 in 3 steps: every point's forces balance, its pressure is within 1e-5
+    # of the one settled to 1e-6 (4e-7 measured on satin4) and the target's within 1e-6 (the bound
+    # on the path above)
+    from textile_fenicsx import compaction
+    from textile_fenicsx.solver.newton import DUAL_RTOL
+
+    loose = pressed("plain", 0.5, vf=0.5, steps=3)
+    monkeypatch.setattr(compaction, "STEP_TOL", 0.0)  # every step to the solver's tolerance
+    tight = pressed("plain", 0.5, vf=0.5, steps=3)
+    for r in (loose, tight):
+        assert r.compaction.reason is None and r.verdict["passed"], r.verdict["failures"]
+        assert max(r.compaction.imbalance) <= DUAL_RTOL, r.compaction.imbalance
+    assert sum(loose.compaction.iterations) < sum(tight.compaction.iterations)
+    np.testing.assert_allclose(loose.compaction.pressure[1:-1], tight.compaction.pressure[1:-1], rtol=1e-5)
+    assert loose.compaction.pressure[-1] == pytest.approx(tight.compaction.pressure[-1], rel=1e-6)
+
+
+@pytest.mark.mpi
 def test_forces_that_settled_out_of_balance_are_refitted_and_the_pressure_is_one_number(reference_dir):
     # TexGen's refined jammed plain weave pressed to Vf 0.5: a platen node's slack fell to
     # round-off before its force grew, and the steps settled with their forces out of balance by

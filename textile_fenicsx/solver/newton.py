@@ -297,6 +297,8 @@ def solve_exact(problem: ContactProblem, x0=None) -> Outcome:
         if line["max_penetration"] <= opts.penetration_tol and (good <= opts.displacement_tol or floor):
             if problem.compaction is not None:  # the platens' pressure is read from the forces
                 line["imbalance"] = ip.imbalance()
+                if line["imbalance"] > DUAL_RTOL and not floor and good > (opts.settle_tol or np.inf):
+                    continue  # settled, but not its forces: on to settle_tol (a compaction's steps)
                 if line["imbalance"] > DUAL_RTOL:
                     line["imbalance_settled"] = line["imbalance"]
                     line["imbalance"] = ip.recover_forces(line["imbalance_settled"])

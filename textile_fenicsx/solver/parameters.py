@@ -108,7 +108,11 @@ class SolverOptions:
     min_gap: the least gap [mm] the exact method keeps between yarns in contact, and between a yarn
     and a mould's platens (default 0: the yarns touch): added to every contact node's margin, so the
     yarns' sections, and so their volumes, are unchanged (a conforming tet mesh needs a gap of
-    matrix between the yarns: meshes/tetra.py).
+    matrix between the yarns: meshes/tetra.py). settle_tol: where the yarns flatten, their
+    forces give the platens' pressure: a solve whose yarns settled to displacement_tol with its
+    forces out of balance (above solver.newton.DUAL_RTOL) goes on until a full step moves less than
+    this [mm] (None: it stops, and its forces are refitted; a compaction's steps set it, see
+    compaction.STEP_TOL).
     """
 
     method: str = "exact"
@@ -118,6 +122,7 @@ class SolverOptions:
     petsc: dict = field(default_factory=lambda: dict(DIRECT_LDLT))
     out_of_core: bool = False
     min_gap: float = 0.0
+    settle_tol: float | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -125,6 +130,8 @@ class SolverOptions:
         check_count("max_iterations", self.max_iterations, 1, MAX_ITERATIONS)
         check_positive("penetration_tol", self.penetration_tol)
         check_positive("displacement_tol", self.displacement_tol)
+        if self.settle_tol is not None:
+            check_positive("settle_tol", self.settle_tol)
         object.__setattr__(self, "min_gap", check_positive("min_gap", self.min_gap, allow_zero=True))
         if self.min_gap > 0 and self.method != "exact":
             raise TextileError("min_gap needs the exact contact method (the penalty method cannot hold a gap)")
