@@ -468,6 +468,38 @@ def test_contact_forms_are_the_derivatives_of_the_energy(crossing_mesh):
 
 
 @pytest.mark.mpi
+def test_the_lumped_spring_is_diagonal_and_holds_the_consistent_springs_total(crossing_mesh):
+    # forms/contact.py, NODAL_P2: the spring where the yarns flatten. Its matrix is diagonal and
+    # positive (HRZ lumping: no entry couples one node's thickness change to another's), and on
+    # gaps of degree 1 it is the consistent spring (the rule integrates degree 1 exactly): a
+    # constant gap's stiffness 1^T J 1 is Et x area, a linear gap's u^T J 1 the same in both
+    from textile_fenicsx.forms import contact_forms
+
+    y = crossing_mesh.yarns[0]
+    g = dolfinx.fem.Function(y.V)
+    Ec, Et = dolfinx.fem.Constant(y.mesh, 1e3), dolfinx.fem.Constant(y.mesh, 1e-4)
+    lumped, consistent = (contact_forms(g, Ec, Et, y.dx, exact=True, lumped=flag)[2] for flag in (True, False))
+    A = dolfinx.fem.assemble_matrix(dolfinx.fem.form(lumped))
+    A.scatter_reverse()
+    n = y.V.dofmap.index_map.size_local
+    rows = np.repeat(np.arange(n), np.diff(A.indptr[:n + 1]))
+    values, cols = A.data[:A.indptr[n]], A.indices[:A.indptr[n]]
+    assert np.all(values[cols != rows] == 0.0) and np.all(values[cols == rows] > 0)
+
+    def total(form):
+        return MPI.COMM_WORLD.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(form)), op=MPI.SUM)
+
+    one, u = dolfinx.fem.Function(y.V), dolfinx.fem.Function(y.V)
+    one.x.array[:] = 1.0
+    u.interpolate(lambda x: 0.3 + x[0] - 2 * x[1])
+    area = total(1.0 * y.dx)
+    for J in (lumped, consistent):
+        assert total(ufl.action(ufl.action(J, one), one)) == pytest.approx(1e-4 * area, rel=1e-12)
+    assert total(ufl.action(ufl.action(lumped, u), one)) == pytest.approx(
+        total(ufl.action(ufl.action(consistent, u), one)), rel=1e-12)
+
+
+@pytest.mark.mpi
 def test_direct_solver_applies_its_options_and_removes_them():
     # the options dict is written under the solver's own prefix, read by the KSP and by MUMPS at
     # the first factorisation, then removed from PETSc's global database

@@ -44,6 +44,7 @@ class PairForms:
     penetration: dolfinx.fem.Form
     matrix: dolfinx.la.MatrixCSR   # the Jacobian's storage (its owned rows' entries come first)
     nnz: int                       # entries of the owned rows
+    kept: np.ndarray | None = None  # lumped: which of them are kept (the diagonal; the rest are 0)
 
 
 @dataclass(frozen=True)
@@ -72,10 +73,11 @@ class ContactPair:
 
 
 def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters, exact: bool,
-                extra: np.ndarray | None = None, min_gap: float = 0.0):
+                extra: np.ndarray | None = None, min_gap: float = 0.0, lumped: bool = False):
     """The pairs, and the (row, column) unknowns of T^T J T's entries in the order `jacobian_values`
     gives them, and the unknowns every pair (and `extra`: the mould's) needs (sorted: the gathered
-    vector's layout). min_gap [mm] is added to every node's margin (initial_gap)."""
+    vector's layout). min_gap [mm] is added to every node's margin (initial_gap). lumped: the exact
+    method's spring by the nodes' rule (forms/contact.py), its entries off the diagonal left out."""
     extra = np.zeros(0, np.int64) if extra is None else extra
     yarns = ms.yarns
     scratch, cell_order = {}, {}
@@ -91,11 +93,13 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         tags = dolfinx.mesh.meshtags(yu.mesh, 2, sub_cells, np.full(len(sub_cells), 1, np.int32))
         dx = ufl.Measure("dx", yu.mesh, subdomain_data=tags, subdomain_id=1)
         Ec, Et = (dolfinx.fem.Constant(yu.mesh, float(v)) for v in (params.Ec, params.Et))
-        energy, residual, jacobian = (dolfinx.fem.form(f) for f in contact_forms(g, Ec, Et, dx, exact))
+        energy, residual, jacobian = (dolfinx.fem.form(f) for f in contact_forms(g, Ec, Et, dx, exact, lumped))
         M = dolfinx.fem.create_matrix(jacobian)
         n_owned = yu.V.dofmap.index_map.size_local
         nnz = int(M.indptr[n_owned])
-        forms = PairForms(g, energy, residual, jacobian, dolfinx.fem.form(penetration_volume(g, dx)), M, nnz)
+        owned_rows = np.repeat(np.arange(n_owned), np.diff(M.indptr[:n_owned + 1]))
+        kept = np.flatnonzero(M.indices[:nnz] == owned_rows) if lumped else None
+        forms = PairForms(g, energy, residual, jacobian, dolfinx.fem.form(penetration_volume(g, dx)), M, nnz, kept)
         # the overlap's dofs on u and on l (the same points)
         du = ms.contact_dofs[(u, l)][:, 0]
         g0, margin = initial_gap(ms, u, l, min_gap)
@@ -104,8 +108,9 @@ def build_pairs(ms: MidSurfaces, numbering: Periodicity, params: PlateParameters
         cu, cl = numbering.unknown(u, parent, BOTTOM), numbering.unknown(l, parent, TOP)
         # T^T J T: J's entry (i, j) adds +m at (u_i, u_j) and (l_i, l_j), -m at (u_i, l_j) and (l_i, u_j);
         # a column may be a dof this rank does not hold (rows get couplings from cells elsewhere)
-        i = numbering.parent_global[yu.to_parent[np.repeat(np.arange(n_owned), np.diff(M.indptr[:n_owned + 1]))]]
-        j = numbering.column_parents(yu, M.index_map(1).local_to_global(M.indices[:nnz]))
+        entries = slice(None) if kept is None else kept
+        i = numbering.parent_global[yu.to_parent[owned_rows[entries]]]
+        j = numbering.column_parents(yu, M.index_map(1).local_to_global(M.indices[:nnz][entries]))
         ui, uj, li, lj = (numbering.unknown(y, d, side) for y, d, side in
                           ((u, i, BOTTOM), (u, j, BOTTOM), (l, i, TOP), (l, j, TOP)))
         rows.append(np.concatenate([ui, ui, li, li]))
@@ -141,6 +146,8 @@ def jacobian_values(pair: ContactPair, g: np.ndarray) -> np.ndarray:
     dolfinx.fem.assemble_matrix(M, pair.forms.jacobian)
     M.scatter_reverse()
     m = M.data[:pair.forms.nnz]
+    if pair.forms.kept is not None:
+        m = m[pair.forms.kept]
     return np.concatenate([m, -m, -m, m])
 
 

@@ -46,6 +46,22 @@ DIRECT_LDLT = {
     "mat_mumps_icntl_24": 1,
 }
 
+# Where the yarns flatten, the Newton systems are solved in (w, dt) with the apart spring lumped
+# (basis.py, forms/contact.py): the dt unknowns couple to their own node's w and to the yarns in
+# contact there only. PORD orders that pattern badly and AMF well. Satin4 to Vf 0.55, a
+# factorisation (mean of 26-27) at seed 0.5: PORD 0.058 s (2.10 M entries in the factor, 7.0e8
+# flops), AMF 0.038 (1.70 M, 3.4e8); at seed 0.25: PORD 0.301 s (7.57 M, 6.2e9), AMF 0.100 (4.39 M,
+# 1.2e9), AMD and QAMD 0.106-0.112 (4.81 M). With the consistent spring, PORD had taken 0.063 and
+# 0.184 s. The relaxed problem keeps PORD (AMF 0.037 s against 0.032 at seed 0.5).
+ORDERING, PORD, AMF = "mat_mumps_icntl_7", 4, 2
+
+
+def flattening_options(options: dict) -> dict:
+    """The linear options of a problem whose yarns flatten: AMF where they order by PORD (DIRECT_LDLT's
+    choice; an ordering of the user's own is kept)."""
+    return {**options, ORDERING: AMF} if options.get(ORDERING) == PORD else dict(options)
+
+
 # Added to DIRECT_LDLT for large coupons: MUMPS writes its factors to disk (ICNTL(22) = 1, in
 # $MUMPS_OOC_TMPDIR, else /tmp) and keeps only the fronts it works on in memory. On a 3.3e5-dof
 # satin coupon the solve stage needed 2.3 x less memory and took 15-25 % longer (README, Performance).

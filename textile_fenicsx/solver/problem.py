@@ -47,7 +47,14 @@ from textile_fenicsx.solver.flattening import (
     packing_rows,
     thickness_changes,
 )
-from textile_fenicsx.solver.linear import DirectSolver, SolverError, mumps_error, negative_pivots, null_pivots
+from textile_fenicsx.solver.linear import (
+    DirectSolver,
+    SolverError,
+    flattening_options,
+    mumps_error,
+    negative_pivots,
+    null_pivots,
+)
 from textile_fenicsx.solver.parameters import Compaction, Mould, PlateParameters, SolverOptions
 from textile_fenicsx.solver.pattern import FixedPattern
 from textile_fenicsx.solver.periodic import BOTTOM, TOP, Periodicity, seam_facet_tags
@@ -155,7 +162,8 @@ class ContactProblem:
         packing = None if compaction is None else packing_rows(ms, numbering, images, compaction)
         extra = np.concatenate([np.zeros(0, np.int64)] + ([] if platens is None else [platens.unknown])
                                + ([] if packing is None else [packing.top, packing.bottom]))
-        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact, extra, options.min_gap)
+        self.pairs, (rows, cols), need = build_pairs(ms, numbering, params, self.exact, extra, options.min_gap,
+                                                       lumped=compaction is not None)
         self.flattening, self._flat_entries = [], 0
         if compaction is not None:
             self.flattening, (fr, fc) = flattening_terms(ms, numbering, self.R, compaction)
@@ -182,7 +190,8 @@ class ContactProblem:
         self.basis = None if compaction is None else MidAndThickness(pattern, numbering)
         self.K_fixed = pattern.matrix()
         self.K = pattern.matrix() if self.basis is None else self.basis.matrix(pattern.values())
-        self.solver = DirectSolver(self.comm, options.linear_options)
+        linear = options.linear_options
+        self.solver = DirectSolver(self.comm, linear if compaction is None else flattening_options(linear))
         self.factorisations, self._convex_checked, self._largest_weight = 0, -1, 0.0
         diag = self.K_fixed.getDiagonal()
         self._plates_scale = diag.max()[1]  # the plates' (and spring's) largest stiffness [N/mm]
