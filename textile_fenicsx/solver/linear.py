@@ -36,11 +36,13 @@ DIRECT_LU = {
 # factorises, so a rank can need more than estimated: with four MPI processes sharing the 2 cores,
 # the 2-rank tests' satin failed with INFOG(1) = -9 (54 153 entries short) at 20 %. Pages of the
 # margin that are not used are never touched: a 2x2 satin coupon peaked at 647 MB, 642 at 20 %.
+# MUMPS' fill-reducing ordering (ICNTL(7)) and the two the solves use
+ORDERING, PORD, AMF = "mat_mumps_icntl_7", 4, 2
 DIRECT_LDLT = {
     "ksp_type": "preonly",
     "pc_type": "cholesky",
     "pc_factor_mat_solver_type": "mumps",
-    "mat_mumps_icntl_7": 4,
+    ORDERING: PORD,
     "mat_mumps_icntl_13": 1,
     "mat_mumps_icntl_14": 50,
     "mat_mumps_icntl_24": 1,
@@ -53,9 +55,6 @@ DIRECT_LDLT = {
 # flops), AMF 0.038 (1.70 M, 3.4e8); at seed 0.25: PORD 0.301 s (7.57 M, 6.2e9), AMF 0.100 (4.39 M,
 # 1.2e9), AMD and QAMD 0.106-0.112 (4.81 M). With the consistent spring, PORD had taken 0.063 and
 # 0.184 s. The relaxed problem keeps PORD (AMF 0.037 s against 0.032 at seed 0.5).
-ORDERING, PORD, AMF = "mat_mumps_icntl_7", 4, 2
-
-
 def flattening_options(options: dict) -> dict:
     """The linear options of a problem whose yarns flatten: AMF where they order by PORD (DIRECT_LDLT's
     choice; an ordering of the user's own is kept)."""
