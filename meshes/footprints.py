@@ -85,13 +85,20 @@ class _Near:
 
     def __init__(self, points: np.ndarray, period: np.ndarray | None) -> None:
         self.period = period
-        self.tree = cKDTree(np.mod(points, period) if period is not None else points,
-                            boxsize=period if period is not None else None)
+        self.tree = cKDTree(self._wrapped(points), boxsize=period if period is not None else None)
+
+    def _wrapped(self, p: np.ndarray) -> np.ndarray:
+        """p moved into the box [0, period) (np.mod returns the period itself for a point a round-off
+        below a cell side, which scipy's periodic tree refuses)."""
+        if self.period is None:
+            return p
+        m = np.mod(p, self.period)
+        return np.where(m >= self.period, m - self.period, m)
 
     def query(self, p: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
         """(distances, indices), each (len(p), NEIGHBOURS), nearest first; inf and n past tol."""
         k = min(self.NEIGHBOURS, self.tree.n)
-        dist, idx = self.tree.query(np.mod(p, self.period) if self.period is not None else p, k=k,
+        dist, idx = self.tree.query(self._wrapped(p), k=k,
                                     distance_upper_bound=tol)
         return np.asarray(dist).reshape(len(p), k), np.asarray(idx).reshape(len(p), k)
 
@@ -99,10 +106,11 @@ class _Near:
 def _same_as(chain: np.ndarray, near: _Near, owner: np.ndarray, chains: list[np.ndarray], tol: float,
              cell: Cell) -> np.ndarray:
     """The chain, or the earlier chain (moved by a whole number of cells) that every point of it
-    over the cell lies within tol of, but not all on it."""
+    over the cell lies within tol of, but not all on it. A chain over the cell at one point at most
+    (a crown's copy whose end meets a side) is left as it is: it is no edge there."""
     x0, x1, y0, y1 = cell.bounds
-    inside = (chain[:, 0] >= x0) & (chain[:, 0] <= x1) & (chain[:, 1] >= y0) & (chain[:, 1] <= y1)
-    if not np.any(inside):
+    inside = (chain[:, 0] > x0) & (chain[:, 0] < x1) & (chain[:, 1] > y0) & (chain[:, 1] < y1)
+    if np.count_nonzero(inside) < 2:
         return chain
     dist, nearest = near.query(chain[inside] - np.array([x0, y0]), tol)
     owners = np.where(np.isfinite(dist), owner[np.minimum(nearest, len(owner) - 1)], -1)
