@@ -258,16 +258,11 @@ def _gap_margins(ms: MidSurfaces) -> None:
     shortfall over the cells around it, of any pair, on any rank, and the solver keeps the node's
     gap >= its margin."""
     basis = _margin_points()
-    msh = ms.V.mesh
     textile = ms.projected.textile
     assert textile is not None  # a textile's mesh (plate_mesh's plates have none)
-    X = msh.geometry.x
 
-    def points(u, l):  # (cells x MARGIN_POINTS, 2) in-plane points of the pair's cells
-        corners = X[msh.geometry.dofmap[ms.contact[(u, l)]]][:, :, :2]  # (c, 3, 2)
-        ref = MARGIN_POINTS
-        return (corners[:, None, 0] + ref[None, :, :1] * (corners[:, None, 1] - corners[:, None, 0])
-                + ref[None, :, 1:] * (corners[:, None, 2] - corners[:, None, 0])).reshape(-1, 2)
+    def points(u, l):
+        return _pair_points(ms, u, l)
 
     # each yarn's rays once, at the points of every pair it is in: the bottom of a pair's upper
     # yarn and the top of its lower yarn there
@@ -289,6 +284,56 @@ def _gap_margins(ms: MidSurfaces) -> None:
         return np.nan_to_num(interp - exact, nan=0.0).max(axis=1).clip(min=0.0)
 
     _add_margins(ms, shortfall)
+
+
+def _pair_points(ms: MidSurfaces, u: int, l: int) -> np.ndarray:
+    """The MARGIN_POINTS of the pair's cells in the plane, (cells x points, 2)."""
+    msh = ms.V.mesh
+    corners = msh.geometry.x[msh.geometry.dofmap[ms.contact[(u, l)]]][:, :, :2]  # (c, 3, 2)
+    ref = MARGIN_POINTS
+    return (corners[:, None, 0] + ref[None, :, :1] * (corners[:, None, 1] - corners[:, None, 0])
+            + ref[None, :, 1:] * (corners[:, None, 2] - corners[:, None, 0])).reshape(-1, 2)
+
+
+def model_margins(ms: MidSurfaces, w: list, model, source: list[int]) -> float:
+    """After a correction with displacements w: where the corrected model's yarns overlap over a
+    pair's cells, the cells' nodes get that depth as more margin [mm], so that the next solve keeps
+    the plates that much further apart there. The sections are laid along the corrected paths, and
+    round a sharp bend (a binder's crown turning into its leg, past a weft's thin edge) they reach
+    beyond the column their plate reserved. source[k]: the model's yarn that plate k belongs to (a
+    crown's binder); where the model's yarn has several intervals over a point (a leg beside its
+    crown), the one whose middle is nearest the plate's mid-height counts. Returns the largest
+    added (collective)."""
+    basis = _margin_points()
+    n_parent = ms.V.dofmap.index_map.size_local + ms.V.dofmap.index_map.num_ghosts
+
+    def heights(k: int, dofs: np.ndarray) -> np.ndarray:  # plate k's mid-height at the points
+        y, z = ms.yarns[k], np.zeros(n_parent)
+        z[y.to_parent] = y.z0.x.array + w[k].x.array
+        return (z[dofs] @ basis.T).ravel()
+
+    def shortfall(u, l):
+        dofs = ms.V.dofmap.list[ms.contact[(u, l)]]
+        xy = _pair_points(ms, u, l)
+        cols = model.columns(xy, yarns=sorted({source[u], source[l]}))
+        bottom = _nearest_interval(cols, source[u], heights(u, dofs), len(xy))[0]
+        top = _nearest_interval(cols, source[l], heights(l, dofs), len(xy))[1]
+        return np.nan_to_num(top - bottom, nan=0.0).reshape(len(dofs), -1).max(axis=1).clip(min=0.0)
+
+    return _add_margins(ms, shortfall)
+
+
+def _nearest_interval(cols, yarn: int, z: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, the bottom and top of the yarn's interval whose middle is nearest z (NaN where
+    the yarn is not over the point)."""
+    mine = np.flatnonzero(cols.yarn == yarn)
+    point = cols.point[mine]
+    far = np.abs((cols.bottom[mine] + cols.top[mine]) / 2 - z[point])
+    order = np.lexsort((far, point))
+    first = order[np.r_[True, point[order][1:] != point[order][:-1]]] if len(order) else order
+    bottom, top = np.full(n, np.nan), np.full(n, np.nan)
+    bottom[point[first]], top[point[first]] = cols.bottom[mine][first], cols.top[mine][first]
+    return bottom, top
 
 
 def widen_margins(ms: MidSurfaces, w: list, dt: list | None = None) -> float:
@@ -354,22 +399,39 @@ def _periodic_structure(ms: MidSurfaces) -> None:
     Gi = np.concatenate([g[1] for g in images])
     Xs = np.vstack([g[0] for g in sources])
     Gs = np.concatenate([g[1] for g in sources])
-    target = Xi.copy()
-    target[target[:, 0] > x1 - tol, 0] -= cell.lx
-    target[target[:, 1] > y1 - tol, 1] -= cell.ly
-    dist, k = cKDTree(Xs).query(target) if len(Xs) else (np.full(len(target), np.inf), None)
-    if np.any(dist > tol):
-        bad = Xi[np.argmax(dist)]
+    tree = cKDTree(Xs) if len(Xs) else None
+
+    def partners(along_x: bool, along_y: bool) -> np.ndarray:
+        """Each image's partner moved back by the cell along x and/or y (-1: no node there)."""
+        target = Xi.copy()
+        if along_x:
+            target[target[:, 0] > x1 - tol, 0] -= cell.lx
+        if along_y:
+            target[target[:, 1] > y1 - tol, 1] -= cell.ly
+        if tree is None:
+            return np.full(len(target), -1, np.int64)
+        dist, k = tree.query(target)
+        return np.where(dist <= tol, Gs[np.minimum(k, len(Gs) - 1)], -1)
+
+    both = partners(True, True)
+    if np.any(both < 0):
+        bad = Xi[np.argmax(both < 0)]
         raise GeometryError(f"the projected mesh is not periodic: the node at ({bad[0]:.6f}, {bad[1]:.6f}) "
                             "has no periodic image inside the cell")
-    pairs = np.column_stack((Gi, Gs[k])) if len(Gi) else np.zeros((0, 2), np.int64)
+    across = (partners(True, False), partners(False, True))
     for y in ms.yarns:
         own = np.concatenate(comm.allgather(np.unique(imap.local_to_global(y.to_parent.astype(np.int32)))))
         # a node on the right or top side is the image of its partner only where the partner is a
         # node of the same yarn: where a yarn's edge lies on a side (a binder whose edge runs along
-        # it) the partner belongs to other yarns, and the node is a free edge of this plate
-        mine = np.isin(pairs[:, 0], own) & np.isin(pairs[:, 1], own)
-        ms.periodic.append(pairs[mine])
+        # it) the partner belongs to other yarns, and the node is a free edge of this plate. A node
+        # of the ghost strip on such a side (a crown that meets the left side, its edge along the
+        # top one) is the image of the node one cell back along x alone (or y): it has no stiffness
+        # of its own
+        partner = np.where(np.isin(both, own), both, -1)
+        for other in across:
+            partner = np.where((partner < 0) & (other != Gi) & np.isin(other, own), other, partner)
+        mine = np.isin(Gi, own) & (partner >= 0)
+        ms.periodic.append(np.column_stack((Gi[mine], partner[mine])) if len(Gi) else np.zeros((0, 2), np.int64))
 
 
 def mesh_statistics(ms: MidSurfaces) -> dict:

@@ -412,6 +412,32 @@ def test_widened_margins_keep_the_gap_field_apart_between_the_nodes():
     assert second.max_penetration <= SolverOptions().penetration_tol
 
 
+@pytest.mark.mpi
+def test_model_margins_add_the_overlap_the_corrected_model_shows():
+    # Two flat strips touching at their crossing (gap 0). A "corrected" model with the upper one
+    # lowered by d overlaps the lower one d deep over the whole crossing, and no deeper anywhere:
+    # model_margins gives the crossing's nodes d more margin, and a model that only touches adds none
+    from dataclasses import replace
+
+    from textile_fenicsx.meshes.midsurface import model_margins
+
+    t = crossing_strips(flat=True)
+    ms = mid_surfaces(projected_mesh(t, MeshOptions(0.25)))
+    w = [dolfinx.fem.Function(y.V) for y in ms.yarns]
+    before = ms.contact_margin[(0, 1)].copy()  # (the P2 field's own, _gap_margins)
+    assert model_margins(ms, w, t, [0, 1]) == pytest.approx(0.0, abs=1e-12)
+    d = 0.03
+    lowered = replace(t, yarns=[replace(t.yarns[0], nodes=t.yarns[0].nodes - [0, 0, d]), t.yarns[1]])
+    assert model_margins(ms, w, lowered, [0, 1]) == pytest.approx(d, rel=1e-9)
+    margin = ms.contact_margin[(0, 1)] - before
+    assert np.all((margin >= 0) & (margin <= d * (1 + 1e-9)))
+    # every contact node of the crossing (the strips are 1 mm wide at its middle) got it
+    X = ms.V.tabulate_dof_coordinates()[:, :2]
+    at = X[ms.yarns[0].to_parent[ms.contact_dofs[(0, 1)][:, 0]]]
+    middle = np.all(np.abs(at - 2.0) < 0.4, axis=1)
+    assert np.all(margin[middle] == pytest.approx(d, rel=1e-9))
+
+
 @pytest.mark.serial
 @pytest.mark.parametrize("name", ["plain", "crowfoot_satin", "orthogonal"])
 def test_whole_path_converges_on_weaves(name):

@@ -23,7 +23,7 @@ from textile_fenicsx.leg_fit import fit_legs
 from textile_fenicsx.legs import leg_loads, plate_model
 from textile_fenicsx.limits import check_length
 from textile_fenicsx.memory import release_freed_memory
-from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, plate_extent, widen_margins
+from textile_fenicsx.meshes.midsurface import MidSurfaces, mid_surfaces, model_margins, plate_extent, widen_margins
 from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
 from textile_fenicsx.metrics import yarn_fibre_fractions
 from textile_fenicsx.slopes import slope_thickness
@@ -64,6 +64,10 @@ FINER = 0.7
 AUTO_MOULD_OPENING = 10.0
 AUTO_MOULD_OPENINGS = 2
 AUTO_MOULD_SLACK = 2e-2
+
+# A weave with binder legs whose corrected yarns overlap is solved again this many times at most,
+# with the overlap added to the contact margins where it lies (_settled)
+SETTLE_ROUNDS = 2
 
 
 @dataclass(frozen=True)
@@ -351,27 +355,77 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
     if solution.converged:
         begin("correct")
         t = time.perf_counter()
-        corrected = corrected_textile(split.textile, solution.w,  # (the model the plates were made from)
-                                      settings.correction.station_spacing(settings.mesh.seed),
-                                      settings.correction.section_points, split, flats)
-        binders = split.binders
-        if binders:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
-            gap = settings.solver.min_gap  # the fits keep the gap the solve kept
-            corrected = fit_legs(corrected, binders, settings.correction.section_points, gap)
-            corrected = open_bends(corrected, binders, settings.correction.section_points, gap)
-        if flats is not None:  # the fibres the compaction counted go with the flattened yarns
-            corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
-                                                  zip(corrected.yarns, yarn_fibre_areas(textile))])
+        corrected = _corrected(textile, split, solution, settings, flats)
         times["correct"] = time.perf_counter() - t
     else:
         log.warning("solve: the contact iteration did not converge: %s", solution.reason)
     times["total"] = time.perf_counter() - start
     result = Run(textile, settings, ms, solution, corrected, times, mould=mould if solution.converged else None,
                  compaction=curve, flats=flats, volume_ratio=ratio, legs=split.any)
+    if split.any and corrected is not None and settings.compaction is None:
+        result = _settled(result, split, loads, begin)
     s = result.summary()
     log.info("solve: %d dofs, %d Newton steps, max penetration %.3e mm, max |w| %.4f mm, %s", s["dofs"],
              s["iterations"], s["max_penetration_nodal"], s["max_abs_w"],
              ", ".join(f"{k} {v:.2f} s" for k, v in times.items()))
+    return result
+
+
+def _corrected(textile: Textile, split, solution: Solution, settings: Settings, flats) -> Textile:
+    """The corrected model of a converged solve (correct.py), its binders' legs fitted into their
+    gaps and their bends opened (leg_fit.py, bend_fit.py)."""
+    corrected = corrected_textile(split.textile, solution.w,  # (the model the plates were made from)
+                                  settings.correction.station_spacing(settings.mesh.seed),
+                                  settings.correction.section_points, split, flats)
+    binders = split.binders
+    if binders:  # legs reach sideways into their neighbours: fitted into the gaps (leg_fit.py)
+        gap = settings.solver.min_gap  # the fits keep the gap the solve kept
+        corrected = fit_legs(corrected, binders, settings.correction.section_points, gap)
+        corrected = open_bends(corrected, binders, settings.correction.section_points, gap)
+    if flats is not None:  # the fibres the compaction counted go with the flattened yarns
+        corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
+                                              zip(corrected.yarns, yarn_fibre_areas(textile))])
+    return corrected
+
+
+def _overlaps_only(result: Run) -> bool:
+    """Does the run's check fail, and on the corrected yarns' overlap alone (collective)?"""
+    failures = result.verdict["failures"]
+    return bool(failures) and all(f["check"].startswith("overlap") for f in failures)
+
+
+def _settled(result: Run, split, loads: dict, begin: Callable[[str], None]) -> Run:
+    """A run with binder legs whose corrected yarns overlap, and that fails nothing else, solved
+    again (SETTLE_ROUNDS at most) with the overlap the corrected model shows over each pair's
+    cells added to the pair's margins there (midsurface.model_margins): such a weave is not meshed
+    again finer (Settings.remesh). The run returned is the last whose solve converged."""
+    settings, ms = result.settings, result.midsurfaces
+    source = [c.yarn for c in split.crowns]
+    for _ in range(SETTLE_ROUNDS):
+        if result.settings.solver.method != "exact" or not _overlaps_only(result):
+            break
+        begin("settle")
+        t = time.perf_counter()
+        added = model_margins(ms, result.solution.w, result.corrected, source)
+        log.warning("settle: the corrected yarns overlap (%s); margins widened by up to %.1e mm where they do; "
+                    "solving again", result.verdict["failures"][0]["message"].split(";")[0], added)
+        problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=result.mould)
+        try:
+            solution = solve_problem(problem, start=result.solution)
+        finally:
+            problem.destroy()
+            del problem
+            release_freed_memory()
+        if not solution.converged:
+            log.warning("settle: the contact iteration did not converge (%s); the run before is kept", solution.reason)
+            break
+        solution.iterations += result.solution.iterations
+        solution.history = result.solution.history + solution.history
+        times = dict(result.times)
+        times["settle"] = times.get("settle", 0.0) + time.perf_counter() - t
+        corrected = _corrected(result.textile, split, solution, settings, None)
+        times["total"] = times["total"] + time.perf_counter() - t
+        result = Run(result.textile, settings, ms, solution, corrected, times, mould=result.mould, legs=True)
     return result
 
 
