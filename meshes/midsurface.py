@@ -399,39 +399,22 @@ def _periodic_structure(ms: MidSurfaces) -> None:
     Gi = np.concatenate([g[1] for g in images])
     Xs = np.vstack([g[0] for g in sources])
     Gs = np.concatenate([g[1] for g in sources])
-    tree = cKDTree(Xs) if len(Xs) else None
-
-    def partners(along_x: bool, along_y: bool) -> np.ndarray:
-        """Each image's partner moved back by the cell along x and/or y (-1: no node there)."""
-        target = Xi.copy()
-        if along_x:
-            target[target[:, 0] > x1 - tol, 0] -= cell.lx
-        if along_y:
-            target[target[:, 1] > y1 - tol, 1] -= cell.ly
-        if tree is None:
-            return np.full(len(target), -1, np.int64)
-        dist, k = tree.query(target)
-        return np.where(dist <= tol, Gs[np.minimum(k, len(Gs) - 1)], -1)
-
-    both = partners(True, True)
-    if np.any(both < 0):
-        bad = Xi[np.argmax(both < 0)]
+    target = Xi.copy()
+    target[target[:, 0] > x1 - tol, 0] -= cell.lx
+    target[target[:, 1] > y1 - tol, 1] -= cell.ly
+    dist, k = cKDTree(Xs).query(target) if len(Xs) else (np.full(len(target), np.inf), None)
+    if np.any(dist > tol):
+        bad = Xi[np.argmax(dist)]
         raise GeometryError(f"the projected mesh is not periodic: the node at ({bad[0]:.6f}, {bad[1]:.6f}) "
                             "has no periodic image inside the cell")
-    across = (partners(True, False), partners(False, True))
+    pairs = np.column_stack((Gi, Gs[k])) if len(Gi) else np.zeros((0, 2), np.int64)
     for y in ms.yarns:
         own = np.concatenate(comm.allgather(np.unique(imap.local_to_global(y.to_parent.astype(np.int32)))))
         # a node on the right or top side is the image of its partner only where the partner is a
         # node of the same yarn: where a yarn's edge lies on a side (a binder whose edge runs along
-        # it) the partner belongs to other yarns, and the node is a free edge of this plate. A node
-        # of the ghost strip on such a side (a crown that meets the left side, its edge along the
-        # top one) is the image of the node one cell back along x alone (or y): it has no stiffness
-        # of its own
-        partner = np.where(np.isin(both, own), both, -1)
-        for other in across:
-            partner = np.where((partner < 0) & (other != Gi) & np.isin(other, own), other, partner)
-        mine = np.isin(Gi, own) & (partner >= 0)
-        ms.periodic.append(np.column_stack((Gi[mine], partner[mine])) if len(Gi) else np.zeros((0, 2), np.int64))
+        # it) the partner belongs to other yarns, and the node is a free edge of this plate
+        mine = np.isin(pairs[:, 0], own) & np.isin(pairs[:, 1], own)
+        ms.periodic.append(pairs[mine])
 
 
 def mesh_statistics(ms: MidSurfaces) -> dict:

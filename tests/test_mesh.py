@@ -187,8 +187,10 @@ def test_texgens_refined_orthogonal_weave_meshes(reference_dir):
     pm = projected_mesh(plate_model(t, 0.5).plate, MeshOptions(0.5))
     assert pm.stats["cells"] > 5000  # made: gmsh failed on it before
     # the wedges' tips left four caps of 0.17-0.18 deg where the wefts' edges part (meshes/caps.py);
-    # replaced, the least angle is the rest of the mesh's (11.3 deg before, 11.09 with the new ones)
-    assert pm.stats["caps_flipped"] == 4
+    # replaced, the least angle is the rest of the mesh's (11.3 deg before, 11.09 with the new ones).
+    # Since the crowns reach the side their leg stands on (legs._clear_of_sides) the first try fails
+    # ("Unable to recover the edge") and the second, with the close edges made one, leaves two
+    assert pm.stats["caps_flipped"] == 2
     assert pm.stats["min_angle_deg"] > 10.0
 
 
@@ -290,32 +292,6 @@ def test_the_plates_of_a_weave_whose_legs_stand_on_the_sides_mesh_periodic(refer
     x = pm.mesh.geometry.x[:, :2]
     on = [np.sort(x[np.abs(x[:, 0] - side) < 1e-9, 1]) for side in (0.0, t.cell.lx)]
     assert len(on[0]) == len(on[1]) and np.allclose(on[0], on[1], atol=1e-9)
-
-
-@pytest.mark.mpi
-def test_ghost_strip_nodes_of_a_crown_in_a_corner_are_images(reference_dir, monkeypatch):
-    # The wide-binder orthogonal weave has a binder's edge on the top side; with its crowns cut at
-    # the left side they cross (legs.CROSSING_CUT_AT_SIDE), the ghost strip's copy of the corner
-    # cell has a node on the top side beyond the right one whose image moved back along x and y is
-    # not the crown's (its edge is free there), and it was left an unknown with no stiffness: "the
-    # linear system is singular". It is the image of the node one cell back along x
-    from textile_fenicsx import legs
-    from textile_fenicsx.meshes.midsurface import REAL
-
-    monkeypatch.setattr(legs, "CROSSING_CUT_AT_SIDE", True)
-    t = read_tg3(reference_dir / "fabrics" / "ortho_w2f3_binder1.375x0.3.tg3")
-    ms = mid_surfaces(projected_mesh(plate_model(t, 0.5).plate, MeshOptions(0.5)))
-    comm, imap = ms.V.mesh.comm, ms.V.dofmap.index_map
-    for y in ms.yarns:  # every node of a yarn on none of its cells in the unit cell is an image
-        real = np.zeros(len(y.to_parent), bool)
-        real[y.V.dofmap.list[y.cell_kind.indices[y.cell_kind.values == REAL]].ravel()] = True
-        def every(dofs):  # these nodes of the yarn on any rank, as global dofs
-            return set(np.concatenate(comm.allgather(imap.local_to_global(dofs.astype(np.int32)))).tolist())
-
-        strip, real_glob = every(y.to_parent[~real]), every(y.to_parent[real])
-        images = set(ms.periodic[y.yarn][:, 0].tolist())
-        alone = strip - real_glob  # (a node may be in the strip on one rank and a real cell's on another)
-        assert alone <= images, f"plate {y.yarn}: {len(alone - images)} nodes of the ghost strip alone are no image"
 
 
 @pytest.mark.serial
