@@ -261,9 +261,6 @@ def _gap_margins(ms: MidSurfaces) -> None:
     textile = ms.projected.textile
     assert textile is not None  # a textile's mesh (plate_mesh's plates have none)
 
-    def points(u, l):
-        return _pair_points(ms, u, l)
-
     # each yarn's rays once, at the points of every pair it is in: the bottom of a pair's upper
     # yarn and the top of its lower yarn there
     surface = {}
@@ -271,7 +268,7 @@ def _gap_margins(ms: MidSurfaces) -> None:
         mine = [(pair, "bottom" if pair[0] == k else "top") for pair in ms.contact if k in pair]
         if not mine:
             continue
-        xy = [points(*pair) for pair, _ in mine]
+        xy = [_pair_points(ms, *pair) for pair, _ in mine]
         bot, top = textile.columns(np.concatenate(xy), yarns=[k]).envelope(len(textile.yarns))
         ends = np.cumsum([len(a) for a in xy])[:-1]
         for (pair, side), b, t in zip(mine, np.split(bot[:, k], ends), np.split(top[:, k], ends)):

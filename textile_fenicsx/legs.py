@@ -217,6 +217,8 @@ def _onto_side(textile: Textile, yarn: Yarn, end: float, other: float, margin: f
                 first = (c, axis, float(lo + max(copy[c], copy[c + 1]) * length))
         if first is None:
             continue
+        if way == ahead and not CROSSING_CUT_AT_SIDE:
+            return None
         k, axis, line = first
 
         def off(t: float, axis: int = axis, line: float = line) -> float:  # from the side line
@@ -224,7 +226,7 @@ def _onto_side(textile: Textile, yarn: Yarn, end: float, other: float, margin: f
 
         at = float(brentq(off, min(s[k], s[k + 1]), max(s[k], s[k + 1]), xtol=1e-14))
         if way == ahead:
-            return at if CROSSING_CUT_AT_SIDE else None
+            return at
         rise = abs(_path(yarn, np.array([at]))[0][0, 2] - pos[0, 2])
         return at if rise <= STEEP * plan[k + 1] else None
     return None

@@ -401,8 +401,8 @@ def _settled(result: Run, split, loads: dict, begin: Callable[[str], None]) -> R
     again finer (Settings.remesh). The run returned is the last whose solve converged."""
     settings, ms = result.settings, result.midsurfaces
     source = [c.yarn for c in split.crowns]
-    for _ in range(SETTLE_ROUNDS):
-        if result.settings.solver.method != "exact" or not _overlaps_only(result):
+    for _ in range(SETTLE_ROUNDS if settings.solver.method == "exact" else 0):
+        if not _overlaps_only(result):
             break
         begin("settle")
         t = time.perf_counter()
