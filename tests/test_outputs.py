@@ -140,6 +140,46 @@ def test_binder_legs_shortened_in_the_correction_do_not_fold(reference_dir, comm
 
 
 @pytest.mark.mpi
+def test_a_crown_that_ends_on_a_cell_side_is_moved_there_by_its_own_plate(comm):
+    # issue 27: TexGen's refined orthogonal weaves end crowns on the cell side x = L (legs._onto_side),
+    # and such a crown's plate has no mesh across that side. Its end on the side, wrapped to x = 0,
+    # was read from the cell nearest there: the crown's other end, 2.8 mm away. t2.4's top crown
+    # end moved -0.121 mm instead of -0.030, below the leg's first station: the path doubled back
+    # and its sections folded over (0.11 % swept back, limit 0.1 %). Here each crown's plate is a
+    # strip over its own span in x with w linear in x (P1 holds it exactly): every point of a
+    # crown, its ends and a point 0.01 mm past the side included, takes that line at its own x
+    import dolfinx
+    from textile_fenicsx.config import load_model
+    from textile_fenicsx.correct import _Crowns
+    from textile_fenicsx.legs import split_steep
+
+    t = load_model(REPO / "reference" / "fabrics" / "ortho_w2f3_fibres_refine_t1.7.tg3")
+    split = split_steep(t, 0.25)
+    slope = 0.05  # w = offset + slope x [mm]
+    for i in (2, 5):
+        pieces, expected, s, xy = [], [], [], []
+        for k, (crown, plate) in enumerate(zip(split.crowns, split.plate.yarns)):
+            if crown.yarn != i:
+                continue
+            x = plate.nodes[:, 0]
+            y = plate.nodes[0, 1]
+            msh = dolfinx.mesh.create_rectangle(comm, [[x.min(), y - 1.0], [x.max(), y + 1.0]], [16, 4])
+            w = dolfinx.fem.Function(dolfinx.fem.functionspace(msh, ("Lagrange", 1)))
+            w.interpolate(lambda p, k=k: 0.01 * k + slope * p[0])
+            pieces.append((crown, w, plate))
+            # points along the crown, its end on the side exactly there, and one past it
+            at = np.column_stack((np.linspace(x.min(), x.max(), 7), np.full(7, y)))
+            if np.isclose(x.max(), t.cell.lx, atol=1e-12):
+                at = np.vstack((at, [[t.cell.lx, y], [t.cell.lx + 0.01, y]]))
+            s.append(np.full(len(at), 0.5 * (crown.s0 + crown.s1)))  # owned by the crown
+            xy.append(at)
+            expected.append(0.01 * k + slope * at[:, 0])
+        got = _Crowns(t.yarns[i], pieces, t.cell).centre(np.concatenate(s), np.concatenate(xy))
+        assert any(np.isclose(p[:, 0], t.cell.lx).any() for p in xy)  # a crown ends on the side
+        assert np.allclose(got, np.concatenate(expected), rtol=0, atol=1e-12)
+
+
+@pytest.mark.mpi
 def test_a_yarn_at_the_node_limit_is_corrected_into_a_model_that_reads_back(reference_dir, comm, mpi_tmp_path,
                                                                            caplog):
     # issue 27, item 5: a yarn of 2000 master nodes (the input limit) is read and solved; its

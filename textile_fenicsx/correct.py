@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from textile_fenicsx.errors import GeometryError, TextileError, check_positive
-from textile_fenicsx.fields import evaluate
+from textile_fenicsx.fields import evaluate, nearest_images
 from textile_fenicsx.limits import MAX_NODES, MAX_NODES_PER_YARN, MAX_SURFACE_POINTS
 from textile_fenicsx.sections import Polygon, polygon_centroids
 from textile_fenicsx.stations import budgets, stations
@@ -128,13 +128,27 @@ class _Crowns:
                 owner[(s + shift >= crown.s0 - 1e-12) & (s + shift <= crown.s1 + 1e-12)] = k
         return owner
 
+    def _on(self, w, xy: np.ndarray) -> np.ndarray:
+        """A crown's w at in-plane points xy (collective); a point outside the crown's plate is
+        read at its image nearest the plate: a crown that ends on a cell side has no mesh across
+        it, and a station on that side, wrapped to the other, took the value at its other end."""
+        xy = self.cell.wrap(xy)
+        if not self.cell.periodic:
+            return evaluate(w, xy, extrapolate=True)
+        out = evaluate(w, xy)
+        off = np.isnan(out)  # the same on every rank
+        if np.any(off):
+            out[off] = evaluate(w, nearest_images(w.function_space.mesh, xy[off], (self.cell.lx, self.cell.ly)),
+                                extrapolate=True)
+        return out
+
     def centre(self, s: np.ndarray, xy: np.ndarray) -> np.ndarray:
         owner, out = self._owner(s), np.full(len(s), np.nan)
         ends = []  # (parameter, w) at every crown's start and end
         for k, (crown, w, plate) in enumerate(self.pieces):
             on = owner == k
-            out[on] = evaluate(w, self.cell.wrap(xy[on]), extrapolate=True) if np.any(on) else []
-            tips = evaluate(w, self.cell.wrap(plate.nodes[[0, -1], :2]), extrapolate=True)
+            out[on] = self._on(w, xy[on]) if np.any(on) else []
+            tips = self._on(w, plate.nodes[[0, -1], :2])
             ends += [(crown.s0, tips[0]), (crown.s1, tips[1])]
         legs = owner < 0
         if np.any(legs):
@@ -169,8 +183,7 @@ class _Crowns:
         for k, (_, w, _) in enumerate(self.pieces):
             on = owner == k
             if np.any(on):
-                out[on] = evaluate(w, self.cell.wrap(xy[on].reshape(-1, 2)),
-                                   extrapolate=True).reshape(-1, xy.shape[1])
+                out[on] = self._on(w, xy[on].reshape(-1, 2)).reshape(-1, xy.shape[1])
             else:
                 evaluate(w, np.zeros((0, 2)), extrapolate=True)  # collective
         return out
