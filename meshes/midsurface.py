@@ -204,6 +204,11 @@ def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
 MARGIN_POINTS = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3],
                           [1 / 4, 0], [3 / 4, 0], [0, 1 / 4], [0, 3 / 4], [3 / 4, 1 / 4], [1 / 4, 3 / 4]])
 
+# Where the corrected model's overlap is read over a pair's cells (model_margins): a lattice of
+# eighths of each cell (45 points); an overlap at a binder's flank 0.05 mm across lay between the
+# MARGIN_POINTS of t1.7's 0.3 mm cells
+SETTLE_POINTS = np.array([[i / 8, j / 8] for j in range(9) for i in range(9 - j)])
+
 
 def _pair_gaps(ms: MidSurfaces, u: int, l: int, w=None, dt=None) -> tuple[np.ndarray, np.ndarray]:
     """The pair's nodal gap (bottom of u less top of l, with displacements w and thickness
@@ -220,12 +225,12 @@ def _pair_gaps(ms: MidSurfaces, u: int, l: int, w=None, dt=None) -> tuple[np.nda
     return g, ms.V.dofmap.list[ms.contact[(u, l)]]
 
 
-def _margin_points() -> np.ndarray:
-    """The P2 basis at MARGIN_POINTS, (points, 6)."""
+def _margin_points(ref: np.ndarray = MARGIN_POINTS) -> np.ndarray:
+    """The P2 basis at the reference points ref (MARGIN_POINTS), (points, 6)."""
     import basix
 
     return basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, 2,
-                                basix.LagrangeVariant.gll_warped).tabulate(0, MARGIN_POINTS)[0, :, :, 0]
+                                basix.LagrangeVariant.gll_warped).tabulate(0, ref)[0, :, :, 0]
 
 
 def _add_margins(ms: MidSurfaces, shortfall) -> float:
@@ -283,11 +288,10 @@ def _gap_margins(ms: MidSurfaces) -> None:
     _add_margins(ms, shortfall)
 
 
-def _pair_points(ms: MidSurfaces, u: int, l: int) -> np.ndarray:
-    """The MARGIN_POINTS of the pair's cells in the plane, (cells x points, 2)."""
+def _pair_points(ms: MidSurfaces, u: int, l: int, ref: np.ndarray = MARGIN_POINTS) -> np.ndarray:
+    """The reference points ref (MARGIN_POINTS) of the pair's cells in the plane, (cells x points, 2)."""
     msh = ms.V.mesh
     corners = msh.geometry.x[msh.geometry.dofmap[ms.contact[(u, l)]]][:, :, :2]  # (c, 3, 2)
-    ref = MARGIN_POINTS
     return (corners[:, None, 0] + ref[None, :, :1] * (corners[:, None, 1] - corners[:, None, 0])
             + ref[None, :, 1:] * (corners[:, None, 2] - corners[:, None, 0])).reshape(-1, 2)
 
@@ -301,7 +305,7 @@ def model_margins(ms: MidSurfaces, w: list, model, source: list[int]) -> float:
     crown's binder); where the model's yarn has several intervals over a point (a leg beside its
     crown), the one whose middle is nearest the plate's mid-height counts. Returns the largest
     added (collective)."""
-    basis = _margin_points()
+    basis = _margin_points(SETTLE_POINTS)
     n_parent = ms.V.dofmap.index_map.size_local + ms.V.dofmap.index_map.num_ghosts
 
     def heights(k: int, dofs: np.ndarray) -> np.ndarray:  # plate k's mid-height at the points
@@ -311,7 +315,7 @@ def model_margins(ms: MidSurfaces, w: list, model, source: list[int]) -> float:
 
     def shortfall(u, l):
         dofs = ms.V.dofmap.list[ms.contact[(u, l)]]
-        xy = _pair_points(ms, u, l)
+        xy = _pair_points(ms, u, l, SETTLE_POINTS)
         cols = model.columns(xy, yarns=sorted({source[u], source[l]}))
         bottom = _nearest_interval(cols, source[u], heights(u, dofs), len(xy))[0]
         top = _nearest_interval(cols, source[l], heights(l, dofs), len(xy))[1]

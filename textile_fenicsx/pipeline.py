@@ -67,7 +67,7 @@ AUTO_MOULD_SLACK = 2e-2
 
 # A weave with binder legs whose corrected yarns overlap is solved again this many times at most,
 # with the overlap added to the contact margins where it lies (_settled)
-SETTLE_ROUNDS = 2
+SETTLE_ROUNDS = 3
 
 
 @dataclass(frozen=True)
