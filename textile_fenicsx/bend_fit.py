@@ -28,7 +28,9 @@ BEND_PAD more stations either side, BEND_WIDENINGS times, and is then left as it
 names the fold). The sections turn with the path, which the probes along up do not see: so the
 check's own overlap depth (vertical rays, on a grid of GUARD_STEP of the cell's side over the
 stretch) may grow nowhere beyond REACH_TOL of the thinnest yarn's height; where it would, the
-move is scaled back (BEND_SCALES), and the stretch is left as it was if none is clear.
+move is scaled back (BEND_SCALES), and the stretch is left as it was if none is clear. The
+constraints hold at the stations, and the cubic between them may turn tighter: a move is kept
+only where the yarn's swept-back volume (verify.tube, the check's measure) falls.
 
 BEND_RATIO is below 1 because the corrected path is a cubic through the stations (one parameter
 step per station) and turns between them more tightly than its chords do. Measured on the
@@ -225,12 +227,15 @@ def _opened_run(textile, i, yarn, run, n, n_points, a, stations, chain, limits) 
     if worst < -1e-9 * h:
         log.debug("bends: stretch %d-%d: no opening (%s, worst %.3g)", run[0], run[-1], result.message, worst)
         return None
+    folded = tube(_with_offsets(yarn, n, pos, up, sec, a), textile.resolution).folded
     for scale in BEND_SCALES:  # the sections turn with the path: where they then reach in, the move is scaled back
         out = a.copy()
         out[run] = a[run] + scale * (x - a[run])
-        if np.all(_depths(textile, i, _with_offsets(yarn, n, pos, up, sec, out), grid) <= np.maximum(before, tol)):
+        moved = _with_offsets(yarn, n, pos, up, sec, out)
+        if np.all(_depths(textile, i, moved, grid) <= np.maximum(before, tol)) and \
+                tube(moved, textile.resolution).folded < folded:
             return out
-    log.debug("bends: stretch %d-%d: its sections would reach into their neighbours", run[0], run[-1])
+    log.debug("bends: stretch %d-%d: its sections would reach into their neighbours or fold more", run[0], run[-1])
     return None
 
 
