@@ -10,7 +10,7 @@ from textile_fenicsx import legs
 from textile_fenicsx.config import load_model
 from textile_fenicsx.legs import split_steep
 from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.pipeline import Settings, run
+from textile_fenicsx.pipeline import AUTO_MOULD_OPENINGS, AUTO_MOULD_SLACK, Settings, run
 
 MODELS = {"ortho": REPO / "reference" / "models" / "ortho.tg3",
           "layer-to-layer": REPO / "reference" / "fabrics" / "l2l_w2f3_b3_0011.tg3",
@@ -161,7 +161,11 @@ def test_the_refined_orthogonal_weave_settles_in_its_mould(name):
     # across that the margins' ten points per cell missed (midsurface.SETTLE_POINTS): it passes
     t = load_model(REPO / "reference" / "fabrics" / f"{name}.tg3")
     r = run(t, Settings(MeshOptions(0.5)), comm=MPI.COMM_WORLD)
-    assert r.mould is not None and r.mould.thickness == pytest.approx(float(name.rsplit("_t", 1)[1]))
+    # the mould is the thickness it was refined to, opened where its yarns stack thicker than it
+    # (t1.7 by 0.0054 mm: DESIGN.md 5), by at most AUTO_MOULD_SLACK of it, AUTO_MOULD_OPENINGS times
+    nominal = float(name.rsplit("_t", 1)[1])
+    assert r.mould is not None
+    assert nominal - 1e-9 <= r.mould.thickness <= nominal * (1 + AUTO_MOULD_SLACK) ** AUTO_MOULD_OPENINGS
     assert r.converged, r.solution.reason
     assert r.solution.max_penetration <= 1e-6
     assert "settle" in r.times
