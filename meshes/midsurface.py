@@ -15,6 +15,7 @@ on the left/bottom sides (global numbering, so pairs that straddle ranks are fou
 import logging
 from dataclasses import dataclass, field
 
+import basix
 import numpy as np
 from mpi4py import MPI
 from scipy.spatial import cKDTree
@@ -207,7 +208,7 @@ MARGIN_POINTS = np.array([[1 / 3, 1 / 3], [1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6
 # Where the corrected model's overlap is read over a pair's cells (model_margins): a lattice of
 # eighths of each cell (45 points); an overlap at a binder's flank 0.05 mm across lay between the
 # MARGIN_POINTS of t1.7's 0.3 mm cells
-SETTLE_POINTS = np.array([[i / 8, j / 8] for j in range(9) for i in range(9 - j)])
+SETTLE_POINTS = basix.create_lattice(basix.CellType.triangle, 8, basix.LatticeType.equispaced, True)
 
 
 def _pair_gaps(ms: MidSurfaces, u: int, l: int, w=None, dt=None) -> tuple[np.ndarray, np.ndarray]:
@@ -227,8 +228,6 @@ def _pair_gaps(ms: MidSurfaces, u: int, l: int, w=None, dt=None) -> tuple[np.nda
 
 def _margin_points(ref: np.ndarray = MARGIN_POINTS) -> np.ndarray:
     """The P2 basis at the reference points ref (MARGIN_POINTS), (points, 6)."""
-    import basix
-
     return basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, 2,
                                 basix.LagrangeVariant.gll_warped).tabulate(0, ref)[0, :, :, 0]
 
