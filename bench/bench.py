@@ -74,12 +74,12 @@ def one_case(name: str) -> dict:
     rank 0 returns the record."""
     from mpi4py import MPI
 
-    from textile_fenicsx.config import load_model
-    from textile_fenicsx.coupon import tile
-    from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.pipeline import Settings, run
-    from textile_fenicsx.solver import SolverOptions
-    from textile_fenicsx.weaves import build
+    from textile_fenicsx.io.config import load_model
+    from textile_fenicsx.model.coupon import tile
+    from textile_fenicsx.model.weaves import build
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
+    from textile_fenicsx.plate.solver import SolverOptions
 
     comm = MPI.COMM_WORLD
     model, seed, repeats, method, _ = CASES[name]

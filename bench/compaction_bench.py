@@ -32,7 +32,7 @@ def one_case(seed: float, steps: int) -> dict:
     from mpi4py import MPI
 
     import textile_fenicsx as tfx
-    from textile_fenicsx.compaction import CompactionTarget
+    from textile_fenicsx.pipeline.compaction import CompactionTarget
 
     satin = tfx.read(MODEL)
     tfx.solve(satin, seed=seed)  # once untimed: the process' first run also loads forms and gmsh

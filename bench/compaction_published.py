@@ -47,9 +47,9 @@ def main() -> None:
     from mpi4py import MPI
 
     import textile_fenicsx as tfx
-    from textile_fenicsx.compaction import CompactionTarget
-    from textile_fenicsx.fibres import with_yarn_vf
-    from textile_fenicsx.plies import random_offsets, stack
+    from textile_fenicsx.model.metrics import with_yarn_vf
+    from textile_fenicsx.model.plies import random_offsets, stack
+    from textile_fenicsx.pipeline.compaction import CompactionTarget
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--plies", type=int, nargs="+", default=[1, 2])

@@ -21,13 +21,13 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from textile_fenicsx.meshes.midsurface import mid_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
-from textile_fenicsx.pipeline import Settings
-from textile_fenicsx.solver import ContactProblem
-from textile_fenicsx.solver.linear import DirectSolver
-from textile_fenicsx.solver.newton import MAX_WEIGHT, _InteriorPoint
-from textile_fenicsx.tg3 import read_tg3
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.pipeline.stages import Settings
+from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+from textile_fenicsx.plate.mesh.projected import MeshOptions, projected_mesh
+from textile_fenicsx.plate.solver import ContactProblem
+from textile_fenicsx.plate.solver.linear import DirectSolver
+from textile_fenicsx.plate.solver.newton import MAX_WEIGHT, _InteriorPoint
 
 REPO = Path(__file__).resolve().parents[1]
 CG = {"ksp_type": "cg", "ksp_rtol": 1e-10, "ksp_max_it": 3000}

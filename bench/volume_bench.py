@@ -91,7 +91,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--kinds", nargs="+", default=["voxel", "tet"])
     parser.add_argument("--ranks", nargs="+", type=int, default=[1, 2])
-    from textile_fenicsx.meshes.volume import DEFAULT_SIZE
+    from textile_fenicsx.volume.box import DEFAULT_SIZE
 
     parser.add_argument("--sizes", nargs="+", default=[f"{k}={h}" for k, h in DEFAULT_SIZE.items()],
                         metavar="KIND=H[,H...]")

@@ -38,8 +38,8 @@ import numpy as np
 from mpi4py import MPI
 
 import textile_fenicsx as tfx
-from textile_fenicsx.compaction import CompactionTarget, plot_curve
-from textile_fenicsx.plotting import yarn_colours
+from textile_fenicsx.pipeline.compaction import CompactionTarget, plot_curve
+from textile_fenicsx.plot.plotting import yarn_colours
 
 comm = MPI.COMM_WORLD
 seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))
@@ -70,7 +70,7 @@ for vf in targets:
 last = runs[targets[-1]]
 lines = None
 if comm.rank == 0:
-    from textile_fenicsx.outputs import cut_lines
+    from textile_fenicsx.pipeline.outputs import cut_lines
 
     out.mkdir(parents=True, exist_ok=True)
     plot_curve(last.compaction, out / "compaction.png", f"{satin.name}: compaction, K = {modulus:g} MPa")

@@ -27,7 +27,7 @@ import numpy as np
 from mpi4py import MPI
 
 import textile_fenicsx as tfx
-from textile_fenicsx.correct import CorrectionOptions
+from textile_fenicsx.correction.correct import CorrectionOptions
 
 comm = MPI.COMM_WORLD
 seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))

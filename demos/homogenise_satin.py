@@ -61,8 +61,8 @@ cells = {"idealised, voxel": (idealised, "voxel")}
 if "voxel" in kinds:
     cells["corrected, voxel"] = (corrected, "voxel")
 if "tet" in kinds:
-    from textile_fenicsx.meshes.tetra import TetOptions, default_gap
-    from textile_fenicsx.solver import SolverOptions
+    from textile_fenicsx.plate.solver import SolverOptions
+    from textile_fenicsx.volume.tetra import TetOptions, default_gap
 
     gap = default_gap(idealised, TetOptions())
     gapped = tfx.solve(idealised, seed=seed, comm=comm, solver=SolverOptions(min_gap=gap)).corrected
@@ -114,7 +114,7 @@ if comm.rank == 0:
 # on each other; the voxels' staircase beside the tetrahedra's conforming faces.
 
 # +
-from textile_fenicsx.volume_figures import phase_cuts, strain_energy_cut  # noqa: E402
+from textile_fenicsx.plot.volume_figures import phase_cuts, strain_energy_cut  # noqa: E402
 
 if comm.rank == 0:
     phase_cuts({name: out / name.replace(", ", "_") / "volume.vtu" for name in cells}, 0.0,

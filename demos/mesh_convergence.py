@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from textile_fenicsx.fields import evaluate
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.weaves import build
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.pipeline.stages import Settings, run
+from textile_fenicsx.plate.mesh.projected import MeshOptions
+from textile_fenicsx.plate.point_values import evaluate
 
 comm = MPI.COMM_WORLD
 seeds = [float(s) for s in os.environ.get("TEXTILE_FENICSX_SEEDS", "2.0 1.0 0.5 0.35 0.25").split()]

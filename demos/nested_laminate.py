@@ -35,9 +35,9 @@ import numpy as np
 from mpi4py import MPI
 
 import textile_fenicsx as tfx
-from textile_fenicsx.compaction import CompactionTarget
-from textile_fenicsx.plies import random_offsets, stack
-from textile_fenicsx.plotting import yarn_colours
+from textile_fenicsx.model.plies import random_offsets, stack
+from textile_fenicsx.pipeline.compaction import CompactionTarget
+from textile_fenicsx.plot.plotting import yarn_colours
 
 comm = MPI.COMM_WORLD
 seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))
@@ -72,7 +72,7 @@ if comm.rank == 0:
 # The laminate cut along the first ply's first warp: idealised stack, nested, pressed.
 
 if comm.rank == 0:
-    from textile_fenicsx.outputs import cut_lines
+    from textile_fenicsx.pipeline.outputs import cut_lines
 
     out.mkdir(parents=True, exist_ok=True)
     label, a, b = cut_lines(laminate)[0]

@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from textile_fenicsx.correct import CorrectionOptions, corrected_textile
-from textile_fenicsx.meshes.midsurface import mid_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
-from textile_fenicsx.plotting import yarn_colours
-from textile_fenicsx.solver import PlateParameters, solve
-from textile_fenicsx.weaves import build
+from textile_fenicsx.correction.correct import CorrectionOptions, corrected_textile
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+from textile_fenicsx.plate.mesh.projected import MeshOptions, projected_mesh
+from textile_fenicsx.plate.solver import PlateParameters, solve
+from textile_fenicsx.plot.plotting import yarn_colours
 
 comm = MPI.COMM_WORLD
 seed = float(os.environ.get("TEXTILE_FENICSX_SEED", "0.5"))

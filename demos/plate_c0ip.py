@@ -30,8 +30,8 @@ from pathlib import Path
 from mpi4py import MPI
 
 import dolfinx.io
-from textile_fenicsx.plotting import plot_height_field
-from textile_fenicsx.verification import AnisotropicPlate, convergence_rates, solve_manufactured_plate
+from textile_fenicsx.plate.verification import AnisotropicPlate, convergence_rates, solve_manufactured_plate
+from textile_fenicsx.plot.plotting import plot_height_field
 
 comm = MPI.COMM_WORLD
 out = Path(os.environ.get("TEXTILE_FENICSX_OUT", "output/plate_c0ip"))

@@ -6,12 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from textile_fenicsx.bend_fit import BEND_PAD, open_bends
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.sections import Ellipse
-from textile_fenicsx.textile import Cell, Textile
-from textile_fenicsx.verify import Tolerances, tube
-from textile_fenicsx.yarn import ConstantSection, Yarn
+from textile_fenicsx.correction.bend_fit import BEND_PAD, open_bends
+from textile_fenicsx.correction.verify import Tolerances, tube
+from textile_fenicsx.model.metrics import measure
+from textile_fenicsx.model.sections import Ellipse
+from textile_fenicsx.model.textile import Cell, Textile
+from textile_fenicsx.model.yarn import ConstantSection, Yarn
 
 L, H, STEP = 4.0, 0.3, 0.03  # cell side, yarn thickness, station spacing [mm]
 
@@ -86,7 +86,7 @@ def test_a_move_that_would_fold_the_binder_more_is_not_kept(tmp_path):
     # where the check's own measure (verify.tube) falls
     import gzip
 
-    from textile_fenicsx.config import load_model
+    from textile_fenicsx.io.config import load_model
 
     path = tmp_path / "corner.json"
     path.write_bytes(gzip.decompress((Path(__file__).parent / "data" / "t17_binder_corner.json.gz").read_bytes()))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import REPO
-from textile_fenicsx.sections import Ellipse, Polygon
-from textile_fenicsx.verify import self_intersecting
+from textile_fenicsx.correction.verify import self_intersecting
+from textile_fenicsx.model.sections import Ellipse, Polygon
 
 CLI = ["python3", "-m", "textile_fenicsx"]
 
@@ -36,7 +36,7 @@ def test_the_convex_shortcut_of_the_self_intersection_check_changes_no_answer():
     # convex polygons skip the test of every pair of edges: on ellipses, their perturbations (some
     # convex, some not, some crossing themselves) and random polygons the answers are those of the
     # full test
-    from textile_fenicsx.verify import _edges_cross
+    from textile_fenicsx.correction.verify import _edges_cross
 
     rng = np.random.default_rng(3)
     base = Ellipse(2.0, 0.5).points(32)
@@ -133,7 +133,7 @@ def _arc_yarn(radius: float, angle: float, width: float, half_height: float, off
     centre of curvature below (a crest), with a rectangular section width x 2 half_height whose 64
     vertices include the corners (so that the surfaces sample it exactly), its centre `offset` [mm]
     above the path."""
-    from textile_fenicsx.yarn import ConstantSection, Yarn
+    from textile_fenicsx.model.yarn import ConstantSection, Yarn
 
     phi = np.linspace(-angle / 2, angle / 2, 41)
     nodes = np.column_stack((radius * np.sin(phi), np.zeros_like(phi), radius * np.cos(phi)))
@@ -150,8 +150,8 @@ def test_a_yarn_s_surface_holds_its_sections_area_per_length_unless_it_folds():
     # theorem) is its section's area where the path turns more gently than the section is thick
     # (Pappus: the centroid on the path); round a bend of radius R below the half-height h the
     # sections sweep backwards on the inside, w (h - R)^2 / 2 per radian, counted by tube().folded
-    from textile_fenicsx.textile import Resolution
-    from textile_fenicsx.verify import tube
+    from textile_fenicsx.correction.verify import tube
+    from textile_fenicsx.model.textile import Resolution
 
     fine = Resolution(spacing=0.002, section_points=64, per_segment=4)
     w, h, angle = 1.0, 0.1, np.pi / 2
@@ -171,8 +171,8 @@ def test_a_yarn_whose_sections_sit_off_its_path_holds_their_area_per_length_of_t
     # on the centroids, seemed to gain that (t2.4's binder +1.09 %). Pappus: the volume is A times
     # the distance the centroid travels. Measured per length of the centroids' line, a section c
     # above a crest's path of radius R holds A, not A (1 + c / R)
-    from textile_fenicsx.textile import Resolution
-    from textile_fenicsx.verify import tube
+    from textile_fenicsx.correction.verify import tube
+    from textile_fenicsx.model.textile import Resolution
 
     fine = Resolution(spacing=0.002, section_points=64, per_segment=4)
     w, h, angle, radius, c = 1.0, 0.1, np.pi / 2, 0.5, 0.05
@@ -188,7 +188,7 @@ def test_the_centroids_of_sections_and_of_sections_with_no_area():
     # the centroids' line a yarn's volume per length is measured along: a triangle's centroid is
     # the mean of its corners (a repeated corner adds no area); a section shrunk to a point has
     # none, and the path stands in for it (not a 0 / 0 that would make the check pass on NaN)
-    from textile_fenicsx.sections import polygon_centroids
+    from textile_fenicsx.model.sections import polygon_centroids
 
     square = [[0, 0], [1, 0], [1, 1], [0, 1]]
     triangle = [[0, 0], [3, 0], [0, 3], [0, 3]]
@@ -202,8 +202,8 @@ def test_the_check_refuses_a_yarn_that_folds_over_and_names_it():
     # issue 27: TexGen's orthogonal binders came out of the correction folded at their corners,
     # every section's area kept (the check passed them): the check now measures the fold, and its
     # message names the yarn, the share of its volume and the place
-    from textile_fenicsx.textile import Cell, Textile
-    from textile_fenicsx.verify import Tolerances, _surface_checks
+    from textile_fenicsx.correction.verify import Tolerances, _surface_checks
+    from textile_fenicsx.model.textile import Cell, Textile
 
     def textile(radius):
         return Textile(Cell(4.0, 4.0, periodic=False), [_arc_yarn(radius, np.pi / 2, 1.0, 0.1)], name="arc")
@@ -228,9 +228,9 @@ def test_a_tight_plain_weave_keeps_its_volume_per_length(comm):
     # width, their centroids 0.056 mm off the path, above it over a crest: a swept tube holds
     # A (1 - k . c) per length). With the path through the centroids: within 0.1 %, both measured
     # by the rays in the cell and from each yarn's surface, and the check passes
-    from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.pipeline import Settings, run
-    from textile_fenicsx.tg3 import read_tg3
+    from textile_fenicsx.io.tg3 import read_tg3
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
 
     result = run(read_tg3(REPO / "reference" / "fabrics" / "plain_w0.9_h0.2_polygon.tg3"),
                  Settings(MeshOptions(0.5)), comm)
@@ -245,8 +245,8 @@ def test_a_tight_plain_weave_keeps_its_volume_per_length(comm):
 def _jammed_plain(fabric: str):
     """The sweep's jammed plain weaves (width/spacing 0.98): TexGen's (bench/make_fabrics.py) and
     our builder's (`ours_plain_jammed`)."""
-    from textile_fenicsx.tg3 import read_tg3
-    from textile_fenicsx.weaves import build
+    from textile_fenicsx.io.tg3 import read_tg3
+    from textile_fenicsx.model.weaves import build
 
     if fabric == "texgen":
         return read_tg3(REPO / "reference" / "fabrics" / "plain_w0.98_h0.2_ellipse.tg3")
@@ -259,8 +259,8 @@ def test_jammed_plain_weaves_pass_at_seed_0_35(fabric, comm):
     # issue 27, item 3: the jammed plain weaves pass their check at seed 0.35, with no overlap left.
     # At seed 0.5 they still fail (docs/sweep.md): the plates' mesh does not resolve the corner
     # where the four footprints nearly meet
-    from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
 
     m = run(_jammed_plain(fabric), Settings(MeshOptions(0.35)), comm).metrics
     assert m["verdict"]["passed"], [f["message"] for f in m["verdict"]["failures"]]
@@ -284,8 +284,8 @@ def test_jammed_plain_weave_thickness_has_converged_at_seed_0_35():
     # 1.084 mm on TexGen's), where seed 0.5 is 7 % thicker (1.160 mm: too coarse for this weave)
     from mpi4py import MPI
 
-    from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
 
     thickness = [run(_jammed_plain("texgen"), Settings(MeshOptions(seed)), MPI.COMM_WORLD).metrics["after"]["thickness"]
                  for seed in (0.35, 0.25)]

@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from textile_fenicsx.api import solve
-from textile_fenicsx.weaves import build
+from textile_fenicsx.model.weaves import build
 
 
 def textile_fenicsx(*args) -> subprocess.CompletedProcess:

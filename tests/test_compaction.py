@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from textile_fenicsx.meshes.midsurface import plate_surfaces
-from textile_fenicsx.meshes.projected import plate_mesh
-from textile_fenicsx.solver import Compaction, ContactProblem, Mould, SolverOptions, solve_problem
-from textile_fenicsx.solver.flattening import hessian_values
-from textile_fenicsx.textile import Cell
+from textile_fenicsx.model.textile import Cell
+from textile_fenicsx.plate.mesh.midsurface import plate_surfaces
+from textile_fenicsx.plate.mesh.projected import plate_mesh
+from textile_fenicsx.plate.solver import Compaction, ContactProblem, Mould, SolverOptions, solve_problem
+from textile_fenicsx.plate.solver.flattening import hessian_values
 
 T0, MODULUS, PHI0 = 0.3, 50.0, 0.6  # relaxed thickness [mm], k E_f [MPa], relaxed fibre fraction
 
@@ -78,7 +78,7 @@ def test_a_mould_beyond_the_maximum_packing_is_named():
 
 @pytest.mark.mpi
 def test_bad_compaction_parameters_are_named():
-    from textile_fenicsx.errors import TextileError
+    from textile_fenicsx.common.errors import TextileError
 
     with pytest.raises(TextileError, match="compaction modulus"):
         Compaction(-1.0)
@@ -88,10 +88,10 @@ def test_bad_compaction_parameters_are_named():
 
 # ---- the compaction stage (compaction.py) on woven fabrics ----
 
-from textile_fenicsx.compaction import CompactionTarget  # noqa: E402
-from textile_fenicsx.meshes.projected import MeshOptions  # noqa: E402
-from textile_fenicsx.pipeline import Settings, run  # noqa: E402
-from textile_fenicsx.weaves import build  # noqa: E402
+from textile_fenicsx.model.weaves import build  # noqa: E402
+from textile_fenicsx.pipeline.compaction import CompactionTarget  # noqa: E402
+from textile_fenicsx.pipeline.stages import Settings, run  # noqa: E402
+from textile_fenicsx.plate.mesh.projected import MeshOptions  # noqa: E402
 
 
 def pressed(name: str, seed: float, comm=MPI.COMM_WORLD, **target):
@@ -106,8 +106,8 @@ def test_the_newton_systems_in_mid_height_and_thickness_are_the_same_systems():
     # with it must solve K dx = r
     from petsc4py import PETSc
 
-    from textile_fenicsx.meshes.midsurface import mid_surfaces
-    from textile_fenicsx.meshes.projected import projected_mesh
+    from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+    from textile_fenicsx.plate.mesh.projected import projected_mesh
 
     ms = mid_surfaces(projected_mesh(build("plain"), MeshOptions(0.5)))
     problem = ContactProblem(ms, mould=Mould(-0.3, 0.3), compaction=Compaction(MODULUS, PHI0))
@@ -186,8 +186,9 @@ def test_a_yarn_fibre_fraction_given_is_the_laws_relaxed_fraction():
     # yarn_vf before; the fibres' volume in the cell scales with V against the default 0.65's
     # (the same sections and lengths). Before, --yarn-vf reached only the volume mesh and the
     # compaction pressed yarns of 0.65
-    from textile_fenicsx.compaction import fibre_volume
-    from textile_fenicsx.fibres import DEFAULT_YARN_VF, with_yarn_vf
+    from textile_fenicsx.model.fibres import DEFAULT_YARN_VF
+    from textile_fenicsx.model.metrics import with_yarn_vf
+    from textile_fenicsx.pipeline.compaction import fibre_volume
 
     model = build("plain")
     r = run(with_yarn_vf(model, 0.55), Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.45)))
@@ -205,7 +206,7 @@ def test_the_pressure_at_the_target_does_not_depend_on_the_steps_taken_to_it():
     # (0.6564 MPa), every step with its forces in equilibrium. Before the pressed problems' own
     # weight cap (solver/newton.py, MAX_WEIGHT_PRESSED) the steps settled with their forces out of
     # balance by up to the size of the largest, and the two paths gave 0.594 and 0.550 MPa
-    from textile_fenicsx.solver.newton import DUAL_RTOL
+    from textile_fenicsx.plate.solver.newton import DUAL_RTOL
 
     one, three = (pressed("plain", 0.5, vf=0.5, steps=n) for n in (1, 3))
     for r in (one, three):
@@ -221,10 +222,10 @@ def test_where_the_yarns_flatten_the_factor_is_ordered_by_amf(monkeypatch):
     # ordering it used (INFOG(7)): AMF (2) where the yarns flatten, PORD (4) in the relaxed problem,
     # and an ordering the user gives is kept (QAMD, 6). AMF's factor is the smaller (plain weave,
     # seed 0.5: 0.43 M entries against PORD's 0.54 M, half the flops)
-    from textile_fenicsx.meshes.midsurface import mid_surfaces
-    from textile_fenicsx.meshes.projected import projected_mesh
-    from textile_fenicsx.solver import problem as contact_problem
-    from textile_fenicsx.solver.linear import DIRECT_LDLT
+    from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+    from textile_fenicsx.plate.mesh.projected import projected_mesh
+    from textile_fenicsx.plate.solver import problem as contact_problem
+    from textile_fenicsx.plate.solver.linear import DIRECT_LDLT
 
     ms = mid_surfaces(projected_mesh(build("plain"), MeshOptions(0.5)))
 
@@ -254,8 +255,8 @@ def test_steps_settled_to_the_step_tolerance_take_fewer_newton_steps_and_keep_th
     # plain weave to Vf 0.5 in 3 steps: every point's forces balance, its pressure is within 1e-5
     # of the one settled to 1e-6 (4e-7 measured on satin4) and the target's within 1e-6 (the bound
     # on the path above)
-    from textile_fenicsx import compaction
-    from textile_fenicsx.solver.newton import DUAL_RTOL
+    from textile_fenicsx.pipeline import compaction
+    from textile_fenicsx.plate.solver.newton import DUAL_RTOL
 
     loose = pressed("plain", 0.5, vf=0.5, steps=3)
     monkeypatch.setattr(compaction, "STEP_TOL", 0.0)  # every step to the solver's tolerance
@@ -276,8 +277,8 @@ def test_forces_that_settled_out_of_balance_are_refitted_and_the_pressure_is_one
     # in 1 step, 1.1076 in 2). Refitted to equilibrium on the closed constraints (newton.py,
     # recover_forces), the forces balance and the pressure is the same however the target is
     # reached (1.18565 MPa in 1, 2, 3 or 4 steps)
-    from textile_fenicsx.solver.newton import DUAL_RTOL
-    from textile_fenicsx.tg3 import read_tg3
+    from textile_fenicsx.io.tg3 import read_tg3
+    from textile_fenicsx.plate.solver.newton import DUAL_RTOL
 
     weave = read_tg3(reference_dir / "fabrics" / "plain_w0.98_h0.2_ellipse_refine.tg3")
     one, two = (run(weave, Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.5, steps=n),
@@ -289,7 +290,7 @@ def test_forces_that_settled_out_of_balance_are_refitted_and_the_pressure_is_one
 
 
 def _jammed_plain_pressed(reference_dir, **settings):
-    from textile_fenicsx.tg3 import read_tg3
+    from textile_fenicsx.io.tg3 import read_tg3
 
     weave = read_tg3(reference_dir / "fabrics" / "plain_w0.98_h0.2_ellipse.tg3")
     return run(weave, Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.5), **settings))
@@ -301,7 +302,7 @@ def test_a_factor_that_lost_the_plates_names_the_coarse_mesh(reference_dir):
     # flatten the weights at the closed nodes reach 1e12 of the plates' stiffness and the factor
     # no longer resolves them (solver/problem.py, RESOLVED_WEIGHTS); its factorisation fails (MUMPS
     # INFOG(1) = -10) at the jammed corner. The error says so, on every rank, and what to try
-    from textile_fenicsx.errors import UnresolvedError
+    from textile_fenicsx.common.errors import UnresolvedError
 
     with pytest.raises(UnresolvedError, match="too coarse for the weave's corners; try a finer --seed"):
         _jammed_plain_pressed(reference_dir, remesh=0)
@@ -318,7 +319,7 @@ def test_the_jammed_plain_weave_pressed_to_vf_half_passes_where_the_weights_outg
     # (UnresolvedError), the second is read as round-off, and the run at 0.35, which overlaps
     # 0.011 mm deep where a yarn is packed to the maximum, is meshed again at 0.245, where it
     # passes (Settings.remesh, twice by default)
-    from textile_fenicsx.solver.newton import DUAL_RTOL
+    from textile_fenicsx.plate.solver.newton import DUAL_RTOL
 
     r = _jammed_plain_pressed(reference_dir)
     assert [x["seed"] for x in r.remeshed] == [0.5, 0.35] and r.settings.mesh.seed == pytest.approx(0.245)
@@ -394,7 +395,7 @@ def test_compaction_input_errors_exit_2(tmp_path):
                             "0,0", "1,1", "--no-picture", "--out", tmp_path / "built"], capture_output=True, text=True,
                            timeout=300)
     assert built.returncode == 0, built.stderr
-    from textile_fenicsx.config import load_model
+    from textile_fenicsx.io.config import load_model
 
     assert [load_model(tmp_path / "built" / f"plain.{ext}").plies for ext in ("json", "tg3")] == [2, 2]
     bad = subprocess.run([sys.executable, "-m", "textile_fenicsx", "build", "plain", "--plies", "2", "--ply-offsets",
@@ -423,7 +424,7 @@ def test_solve_passes_its_yarn_fibre_fraction_to_the_compaction(tmp_path):
 
 @pytest.mark.mpi
 def test_two_plies_nest_when_moved_by_half_a_spacing_and_not_in_register():
-    from textile_fenicsx.plies import stack
+    from textile_fenicsx.model.plies import stack
 
     plain = build("plain")  # spacing 2 mm
     single = run(plain, Settings(MeshOptions(0.5))).metrics["after"]["thickness"]
@@ -445,8 +446,8 @@ def test_a_ply_whose_yarn_runs_along_the_cells_side_is_corrected():
     # warp runs along y = 4, the cell's side. gmsh put side nodes up to 2e-14 mm off it, the
     # warp's centreline there lay outside its plate by more than DOLFINx's collision tolerance,
     # and the correction stopped ("lies outside its meshed footprint"). Side nodes are now on it
-    from textile_fenicsx.meshes.projected import projected_mesh
-    from textile_fenicsx.plies import stack
+    from textile_fenicsx.model.plies import stack
+    from textile_fenicsx.plate.mesh.projected import projected_mesh
 
     plies = stack(build("plain", spacing=2.0, width=1.2, height=0.4), 2, [(0, 0), (1.0, 1.0)])
     x = projected_mesh(plies, MeshOptions(0.5)).mesh.geometry.x
@@ -463,7 +464,7 @@ def test_texgens_own_stack_of_plies_nests_through_the_contact_solve(reference_di
     # (1.0, 0.5) mm and dropped by NestLayers, interpenetrating) is read as a stack of 2 plies and
     # solved like any fabric: the check passes, and out of register the plies are no thicker than
     # two plies in register, each as thick as one ply alone (1 %: the rays' sampling)
-    from textile_fenicsx.tg3 import read_tg3
+    from textile_fenicsx.io.tg3 import read_tg3
 
     models = reference_dir / "models"
     single = run(read_tg3(models / "plain.tg3"), Settings(MeshOptions(0.5))).metrics["after"]["thickness"]
@@ -475,7 +476,7 @@ def test_texgens_own_stack_of_plies_nests_through_the_contact_solve(reference_di
 
 @pytest.mark.mpi
 def test_a_nested_stack_is_pressed_as_one_fabric():
-    from textile_fenicsx.plies import stack
+    from textile_fenicsx.model.plies import stack
 
     r = run(stack(build("plain"), 2, [(0, 0), (1.0, 1.0)]),
             Settings(MeshOptions(0.5), compaction=CompactionTarget(MODULUS, vf=0.5, steps=3)))

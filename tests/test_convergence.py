@@ -9,12 +9,12 @@ for seeds 1.0 to 0.35.)
 import numpy as np
 import pytest
 
-from textile_fenicsx.correct import CorrectionOptions
-from textile_fenicsx.fields import evaluate
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.weaves import build
+from textile_fenicsx.correction.correct import CorrectionOptions
+from textile_fenicsx.model.metrics import measure
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.pipeline.stages import Settings, run
+from textile_fenicsx.plate.mesh.projected import MeshOptions
+from textile_fenicsx.plate.point_values import evaluate
 
 SEEDS = (0.5, 0.35, 0.25)
 

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from textile_fenicsx.config import load_model
-from textile_fenicsx.coupon import tile
-from textile_fenicsx.errors import TextileError
-from textile_fenicsx.fields import evaluate
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.tg3 import read_tg3
-from textile_fenicsx.weaves import build
+from textile_fenicsx.common.errors import TextileError
+from textile_fenicsx.io.config import load_model
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.model.coupon import tile
+from textile_fenicsx.model.metrics import measure
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.pipeline.stages import Settings, run
+from textile_fenicsx.plate.mesh.projected import MeshOptions
+from textile_fenicsx.plate.point_values import evaluate
 
 
 @pytest.mark.serial

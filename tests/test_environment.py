@@ -60,11 +60,11 @@ def test_single_threaded_openblas_selected():
 @pytest.mark.serial
 def test_package_layout_imports():
     import textile_fenicsx
-    import textile_fenicsx.forms
-    import textile_fenicsx.meshes
+    import textile_fenicsx.plate.forms
+    import textile_fenicsx.plate.mesh
 
-    assert textile_fenicsx.forms.__name__ == "textile_fenicsx.forms"
-    assert textile_fenicsx.meshes.__name__ == "textile_fenicsx.meshes"
+    assert textile_fenicsx.plate.forms.__name__ == "textile_fenicsx.plate.forms"
+    assert textile_fenicsx.plate.mesh.__name__ == "textile_fenicsx.plate.mesh"
     out = subprocess.run(["textile-fenicsx", "--version"], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == f"textile-fenicsx {textile_fenicsx.__version__}"
 
@@ -81,7 +81,7 @@ def test_mpi_world_matches_launcher():
 @pytest.mark.serial
 def test_installed_package_holds_every_module(tmp_path):
     # pip installs the package as pyproject.toml lists it; every module of the source tree must
-    # then import from the installation (was: textile_fenicsx.solver missing, so the Docker image,
+    # then import from the installation (was: textile_fenicsx.plate.solver missing, so the Docker image,
     # which runs the installed package, failed at its first solve)
     import shutil
 

@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from textile_fenicsx import fibres
-from textile_fenicsx.config import load_model, save_model, textile_from_dict
-from textile_fenicsx.errors import FormatError
-from textile_fenicsx.metrics import yarn_fibre_fractions
-from textile_fenicsx.tg3 import read_tg3, write_tg3
+from textile_fenicsx.common.errors import FormatError
+from textile_fenicsx.io.config import load_model, save_model, textile_from_dict
+from textile_fenicsx.io.tg3 import read_tg3, write_tg3
+from textile_fenicsx.model import fibres
+from textile_fenicsx.model.metrics import yarn_fibre_fractions
 
 pytestmark = pytest.mark.serial
 
@@ -77,7 +77,7 @@ def test_bad_fibre_units_name_the_attribute(reference_dir, tmp_path):
 
 
 def test_a_model_without_fibre_data_gets_the_stated_default(reference_dir, caplog):
-    from textile_fenicsx import metrics
+    from textile_fenicsx.model import metrics
 
     metrics._WARNED.clear()  # the warning is given once per model and process
     t = read_tg3(reference_dir / "models" / "plain.tg3")
@@ -87,7 +87,7 @@ def test_a_model_without_fibre_data_gets_the_stated_default(reference_dir, caplo
 
 
 def test_metrics_report_the_cell_fibre_fraction(reference_dir):
-    from textile_fenicsx.metrics import measure
+    from textile_fenicsx.model.metrics import measure
 
     t = read_tg3(reference_dir / "models" / "satin4_fibres.tg3")
     m = measure(t, n=100)

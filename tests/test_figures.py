@@ -7,10 +7,10 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from textile_fenicsx import plotting
-from textile_fenicsx.coupon import tile
-from textile_fenicsx.outputs import cut_lines
-from textile_fenicsx.weaves import build
+from textile_fenicsx.model.coupon import tile
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.pipeline.outputs import cut_lines
+from textile_fenicsx.plot import plotting
 
 
 def axis_rulers(view) -> list[str]:

@@ -17,17 +17,17 @@ import pytest
 from mpi4py import MPI
 
 from conftest import REPO
-from textile_fenicsx.cli import build_parser
-from textile_fenicsx.config import load_model
-from textile_fenicsx.coupon import tile
-from textile_fenicsx.errors import GeometryError, SolverError, TextileError
-from textile_fenicsx.meshes.midsurface import mid_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, estimated_dofs, projected_mesh
-from textile_fenicsx.sections import Ellipse
-from textile_fenicsx.solver import PlateParameters, SolverOptions, solve
-from textile_fenicsx.textile import Cell, Textile
-from textile_fenicsx.weaves import build
-from textile_fenicsx.yarn import ConstantSection, Yarn
+from textile_fenicsx.cli.main import build_parser
+from textile_fenicsx.common.errors import GeometryError, SolverError, TextileError
+from textile_fenicsx.io.config import load_model
+from textile_fenicsx.model.coupon import tile
+from textile_fenicsx.model.sections import Ellipse
+from textile_fenicsx.model.textile import Cell, Textile
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.model.yarn import ConstantSection, Yarn
+from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+from textile_fenicsx.plate.mesh.projected import MeshOptions, estimated_dofs, projected_mesh
+from textile_fenicsx.plate.solver import PlateParameters, SolverOptions, solve
 
 CLI = ["textile-fenicsx"]
 
@@ -286,7 +286,8 @@ HELD_IN_NATIVE_CODE = """
 import signal, sys
 from pathlib import Path
 import numpy as np
-from textile_fenicsx import cli, files, interrupts
+from textile_fenicsx.cli import main as cli
+from textile_fenicsx.common import files, interrupts
 signal.signal(signal.SIGTERM, cli._interrupt)
 signal.signal(signal.SIGINT, cli._interrupt)
 interrupts.watch(cli._interrupted, files.abandon_outputs, cli.EXIT_INTERRUPTED)
@@ -301,7 +302,7 @@ with files.staged_folder(Path(sys.argv[1])) as tmp:
 @pytest.mark.serial
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_interrupt_inside_native_code_ends_the_run(sig, tmp_path):
-    from textile_fenicsx.interrupts import GRACE
+    from textile_fenicsx.common.interrupts import GRACE
 
     proc = subprocess.Popen([sys.executable, "-c", HELD_IN_NATIVE_CODE, str(tmp_path / "run")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -323,7 +324,8 @@ LOOPING_IN_NATIVE_CODE = """
 import signal, sys
 from pathlib import Path
 import numpy as np
-from textile_fenicsx import cli, files, interrupts
+from textile_fenicsx.cli import main as cli
+from textile_fenicsx.common import files, interrupts
 interrupts.watch(cli._interrupted, files.abandon_outputs, cli.EXIT_INTERRUPTED, cli._error_line)
 with files.staged_folder(Path(sys.argv[1])) as tmp:
     with interrupts.time_limit(30.0, lambda: "never"):  # ends in time: nothing happens
@@ -349,7 +351,7 @@ def test_a_native_call_past_its_time_limit_ends_the_run(tmp_path):
 @pytest.mark.serial
 def test_time_limit_is_nothing_outside_the_command_line():
     # in a user's own session (no interrupts.watch) the block runs to its end
-    script = ("import time; from textile_fenicsx import interrupts\n"
+    script = ("import time; from textile_fenicsx.common import interrupts\n"
               "with interrupts.time_limit(0.1, lambda: 'x'):\n    time.sleep(0.5)\nprint('done')")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and proc.stdout.strip() == "done"
@@ -452,7 +454,7 @@ def test_the_memory_guard_covers_what_the_bench_measures(tmp_path, factors):
     # (BYTES_PER_DOF_OUT_OF_CORE with MUMPS' factors on disk, --out-of-core).
     # The bench's own record of a small coupon (84 000 dofs, its own process): the guard's need
     # covers the peak resident set, and is not so pessimistic (4x) that it refuses runs that fit.
-    from textile_fenicsx import memory
+    from textile_fenicsx.common import memory
 
     BYTES_PER_RANK = memory.BYTES_PER_RANK
     BYTES_PER_DOF = memory.BYTES_PER_DOF if factors == "in memory" else memory.BYTES_PER_DOF_OUT_OF_CORE
@@ -479,7 +481,7 @@ def test_dense_master_nodes_are_measured_in_bounded_memory():
     # 11 GB and failed. Now the bins follow the triangles and the pairs are tested in chunks.
     import tracemalloc
 
-    from textile_fenicsx.metrics import measure
+    from textile_fenicsx.model.metrics import measure
 
     x = np.linspace(0.0, 4.0, 2000)
     dense = Yarn(np.column_stack((x, np.full_like(x, 2.0), 0.3 - 0.15 * np.cos(np.pi * x / 2))),
@@ -538,7 +540,7 @@ def test_command_line_sizes_out_of_bounds_are_refused(args, message, tmp_path):
 
 @pytest.mark.serial
 def test_memory_estimate_of_any_coupon_is_quick():
-    from textile_fenicsx.meshes.projected import check_memory
+    from textile_fenicsx.plate.mesh.projected import check_memory
 
     unit = build("crowfoot_satin")
     start = time.perf_counter()
@@ -556,7 +558,7 @@ def test_factors_on_disk_let_the_guard_take_a_larger_coupon(tmp_path):
     # --out-of-core: the guard assumes BYTES_PER_DOF_OUT_OF_CORE per dof. A memory limit between
     # the two needs of a 2 x 2 crowfoot satin coupon: refused with the factors in memory, solved
     # with them on disk
-    from textile_fenicsx.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
+    from textile_fenicsx.common.memory import BYTES_PER_DOF, BYTES_PER_DOF_OUT_OF_CORE, BYTES_PER_RANK
 
     dofs = estimated_dofs(build("crowfoot_satin"), 1.0, (2, 2))
     limit = (dofs * (BYTES_PER_DOF + BYTES_PER_DOF_OUT_OF_CORE) / 2 + BYTES_PER_RANK) / 1e9
@@ -674,8 +676,8 @@ def test_earlier_results_and_stale_temporaries_are_removed(tmp_path):
 @pytest.mark.serial
 def test_write_run_removes_every_result_of_an_earlier_run(tmp_path):
     # outputs.write_run: RESULT_NAMES and FAILED_NAMES of an earlier run go; other files stay
-    from textile_fenicsx.outputs import FAILED_NAMES, RESULT_NAMES
-    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.pipeline.outputs import FAILED_NAMES, RESULT_NAMES
+    from textile_fenicsx.pipeline.stages import Settings, run
 
     out = tmp_path / "run"
     out.mkdir()
@@ -701,7 +703,7 @@ def test_mesh_rerun_without_picture_removes_the_old_picture(tmp_path):
 @pytest.mark.serial
 def test_second_run_into_the_same_folder_fails_at_once(tmp_path):
     # was: no lock, the last run won. The lock is held here, as a running solve would hold it
-    from textile_fenicsx.files import output_lock
+    from textile_fenicsx.common.files import output_lock
 
     out = tmp_path / "run"
     out.mkdir()
@@ -822,7 +824,7 @@ def test_a_rank_waiting_for_rank_0_sleeps():
     gmsh threads, 49 CPU s while the satin's tet mesh was made)."""
     from mpi4py import MPI
 
-    from textile_fenicsx.parallel import wait_asleep
+    from textile_fenicsx.common.parallel import wait_asleep
 
     comm = MPI.COMM_WORLD
     comm.barrier()

@@ -13,7 +13,7 @@ from test_materials import PATCH, rotation, tensor_rotation
 
 import dolfinx
 import dolfinx.fem
-from textile_fenicsx.errors import FormatError, GeometryError, SolverError, TextileError
+from textile_fenicsx.common.errors import FormatError, GeometryError, SolverError, TextileError
 from textile_fenicsx.homogenisation import (
     HomogeniseOptions,
     Isotropic,
@@ -229,7 +229,7 @@ def _elastic_matrix(mesh, degree, dx) -> np.ndarray:
     import basix.ufl
     import ufl
 
-    from textile_fenicsx.forms.elasticity import elastic_cell_forms
+    from textile_fenicsx.homogenisation.elasticity_forms import elastic_cell_forms
 
     V = dolfinx.fem.functionspace(mesh, basix.ufl.element("Lagrange", mesh.basix_cell(), degree, shape=(3,)))
     D = dolfinx.fem.Constant(mesh, stiffness(PRESETS["t300"]))

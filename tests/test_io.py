@@ -11,15 +11,15 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from textile_fenicsx.config import load_model, save_model
-from textile_fenicsx.errors import FormatError, TextileError
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.sections import Ellipse, Polygon
-from textile_fenicsx.surfaces import YarnSurfaces, is_closed
-from textile_fenicsx.textile import Cell, Textile
-from textile_fenicsx.tg3 import read_tg3, write_tg3
-from textile_fenicsx.weaves import build, weave2d
-from textile_fenicsx.yarn import ConstantSection, NodeSections, Yarn
+from textile_fenicsx.common.errors import FormatError, TextileError
+from textile_fenicsx.io.config import load_model, save_model
+from textile_fenicsx.io.tg3 import read_tg3, write_tg3
+from textile_fenicsx.model.metrics import measure
+from textile_fenicsx.model.sections import Ellipse, Polygon
+from textile_fenicsx.model.textile import Cell, Textile
+from textile_fenicsx.model.weaves import build, weave2d
+from textile_fenicsx.model.yarn import ConstantSection, NodeSections, Yarn
+from textile_fenicsx.plot.surfaces import YarnSurfaces, is_closed
 
 SUPPRESS = [HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
 # Cases per reader fuzz test (issue 8: a few thousand in all, every CI run); TEXTILE_FENICSX_FUZZ
@@ -232,7 +232,7 @@ def test_a_stack_of_plies_reads_back_as_the_same_stack(reference_dir, tmp_path):
     # (<Layer> yarn lists) reads back with its plies; plies of different sizes too (TexGen's
     # plain_layered.tg3 with yarn 0 moved from the first ply's <Layer> to the end of the second's:
     # the yarns are then read in the layers' order, 1-7 then 0)
-    from textile_fenicsx.plies import ply_of, stack
+    from textile_fenicsx.model.plies import ply_of, stack
 
     equal = stack(build("plain"), 3, [(0, 0), (1.0, 0.0), (0.5, 1.5)])
     layered = read_tg3(reference_dir / "models" / "plain_layered.tg3")
@@ -247,7 +247,7 @@ def test_a_stack_of_plies_reads_back_as_the_same_stack(reference_dir, tmp_path):
     order = [1, 2, 3, 4, 5, 6, 7, 0]
     assert all(np.array_equal(a.nodes, layered.yarns[i].nodes) for a, i in zip(unequal.yarns, order))
     # a coupon of a stack is a stack: each ply's yarns' copies, ply by ply
-    from textile_fenicsx.coupon import tile
+    from textile_fenicsx.model.coupon import tile
 
     coupon = tile(unequal, 2, 1)
     assert coupon.plies == 2 and ply_of(coupon) == sorted(ply_of(coupon)) and len(coupon.yarns) > 8
@@ -330,7 +330,7 @@ def test_twill_builder_volume_is_section_area_times_length(spacing, fill, aspect
     t = build("twill", over=over, under=under, spacing=spacing, width=fill * spacing, height=height)
     t.resolution = type(t.resolution)(spacing=0.1, section_points=48)
     y = t.yarns[0]
-    from textile_fenicsx.sections import polygon_area
+    from textile_fenicsx.model.sections import polygon_area
 
     expected = polygon_area(y.section.section.points(48)) * y.length()
     xy, dA = t.cell.grid(int(np.ceil(40 * max(t.cell.lx, t.cell.ly) / (fill * spacing))))

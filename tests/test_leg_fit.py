@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from textile_fenicsx.leg_fit import (
+from textile_fenicsx.correction.leg_fit import (
     FIT_LEAST,
     FIT_MARGIN,
     KINK_WEIGHT,
@@ -19,11 +19,11 @@ from textile_fenicsx.leg_fit import (
     second_difference,
     squashed,
 )
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.sections import Ellipse, polygon_area
-from textile_fenicsx.textile import Cell, Textile
-from textile_fenicsx.verify import tube
-from textile_fenicsx.yarn import ConstantSection, Yarn
+from textile_fenicsx.correction.verify import tube
+from textile_fenicsx.model.metrics import measure
+from textile_fenicsx.model.sections import Ellipse, polygon_area
+from textile_fenicsx.model.textile import Cell, Textile
+from textile_fenicsx.model.yarn import ConstantSection, Yarn
 
 L, GAP, H = 2.0, 0.22, 0.3  # cell side, gap between the weft columns, binder thickness [mm]
 
@@ -94,7 +94,7 @@ def test_a_leg_that_fits_its_gap_is_left_as_it_is():
 def test_a_leg_that_cannot_fit_its_gap_is_left_as_it_is_and_named(caplog):
     # a 0.1 mm gap for the 0.3 mm binder: squashed to FIT_LEAST (0.4) it would still be 0.12 mm
     textile = binder_through_a_gap(gap=0.1)
-    with caplog.at_level("WARNING", logger="textile_fenicsx.leg_fit"):
+    with caplog.at_level("WARNING", logger="textile_fenicsx.correction.leg_fit"):
         fitted = fit_legs(textile, [2])
     assert fitted.yarns[2] is textile.yarns[2]
     assert "binder's leg at (" in caplog.text and "cannot be fitted into the gap beside it" in caplog.text

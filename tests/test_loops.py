@@ -5,13 +5,13 @@ import pytest
 from mpi4py import MPI
 
 from conftest import REPO
-from textile_fenicsx.config import load_model
-from textile_fenicsx.legs import plate_model
-from textile_fenicsx.loops import unlooped, unlooped_yarn
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.sections import Ellipse
-from textile_fenicsx.yarn import NodeSections, Yarn
+from textile_fenicsx.correction.legs import plate_model
+from textile_fenicsx.correction.loops import unlooped, unlooped_yarn
+from textile_fenicsx.io.config import load_model
+from textile_fenicsx.model.sections import Ellipse
+from textile_fenicsx.model.yarn import NodeSections, Yarn
+from textile_fenicsx.pipeline.stages import Settings, run
+from textile_fenicsx.plate.mesh.projected import MeshOptions
 
 FABRICS = REPO / "reference" / "fabrics"
 
@@ -28,7 +28,7 @@ def test_a_layer_to_layer_binders_crossed_nodes_become_one_node_at_its_column(ca
     # height there (z 1.45): one node at their mean, 5.60, the weft column's gap; the path is then
     # 2 x (0.08 + 0.08) mm shorter less what the Bezier's turns took, and runs forward everywhere
     t = load_model(FABRICS / "l2l_w2f3_b3_0011_binder1.0x0.3.tg3")
-    with caplog.at_level("INFO", logger="textile_fenicsx.loops"):
+    with caplog.at_level("INFO", logger="textile_fenicsx.correction.loops"):
         u, which = unlooped(t)
     assert which == (2, 3, 4, 7, 8, 9)
     assert "loops: yarn 9 runs back in plan: master nodes 10, 11 step 0.08 mm back: one node at (5.6, 9.4, 1.45) mm" \

@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from textile_fenicsx.errors import FormatError, GeometryError, TextileError
+from textile_fenicsx.common.errors import FormatError, GeometryError, TextileError
 from textile_fenicsx.homogenisation.constants import (
     bond_matrix,
     bounds,

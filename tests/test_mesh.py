@@ -9,17 +9,17 @@ import ufl
 from mpi4py import MPI
 
 import dolfinx
-from textile_fenicsx import commands
-from textile_fenicsx.arguments import build_parser
-from textile_fenicsx.errors import GeometryError, TextileError
-from textile_fenicsx.legs import plate_model
-from textile_fenicsx.meshes.caps import flip_caps, triangle_angles
-from textile_fenicsx.meshes.footprints import snap_to_neighbours
-from textile_fenicsx.meshes.midsurface import mesh_statistics, mid_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
-from textile_fenicsx.textile import Cell
-from textile_fenicsx.tg3 import read_tg3
-from textile_fenicsx.weaves import build, crowfoot_satin
+from textile_fenicsx.cli import commands
+from textile_fenicsx.cli.arguments import build_parser
+from textile_fenicsx.common.errors import GeometryError, TextileError
+from textile_fenicsx.correction.legs import plate_model
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.model.textile import Cell
+from textile_fenicsx.model.weaves import build, crowfoot_satin
+from textile_fenicsx.plate.mesh.caps import flip_caps, triangle_angles
+from textile_fenicsx.plate.mesh.footprints import snap_to_neighbours
+from textile_fenicsx.plate.mesh.midsurface import mesh_statistics, mid_surfaces
+from textile_fenicsx.plate.mesh.projected import MeshOptions, projected_mesh
 
 
 def satin():
@@ -240,7 +240,7 @@ def test_a_triangle_made_twice_is_named_not_passed_on():
     # triangles twice over the same nodes, and DOLFINx stopped on "Duplicate mesh entity" or
     # crashed in create_mesh (malloc: invalid next size). The mesher names it, so that its retries
     # run and the last failure says where
-    from textile_fenicsx.meshes.regions import _no_triangle_twice
+    from textile_fenicsx.plate.mesh.regions import _no_triangle_twice
 
     x, cells, _ = _cap_mesh(-0.3)
     _no_triangle_twice(x, cells)  # a mesh without: nothing said
@@ -269,7 +269,7 @@ def test_a_point_a_round_off_below_a_side_has_its_periodic_neighbours():
     # np.mod(-1e-17, 11.2) is 11.2 itself, which scipy's periodic tree refuses ("Some input data
     # are greater than the size of the periodic box"): the crowns that end on the side x = 0 put
     # such points into the footprints, and every retry of the regions' mesh failed on it
-    from textile_fenicsx.meshes.footprints import _Near
+    from textile_fenicsx.plate.mesh.footprints import _Near
 
     near = _Near(np.array([[-1e-17, 5.0], [3.0, 4.0]]), np.array([11.2, 10.4]))
     dist, idx = near.query(np.array([[11.2 - 1e-12, 5.0]]), 0.01)

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from scipy.special import ellipe
 
-from textile_fenicsx.metrics import _clipped, coverage_depth, crimp, measure
-from textile_fenicsx.sections import Ellipse, Lenticular, PowerEllipse, polygon_area
-from textile_fenicsx.textile import Cell, Resolution, Textile
-from textile_fenicsx.tg3 import read_tg3
-from textile_fenicsx.weaves import build, crowfoot_satin, orthogonal, plain, satin, twill
-from textile_fenicsx.yarn import ConstantSection, Yarn
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.model.metrics import _clipped, coverage_depth, crimp, measure
+from textile_fenicsx.model.sections import Ellipse, Lenticular, PowerEllipse, polygon_area
+from textile_fenicsx.model.textile import Cell, Resolution, Textile
+from textile_fenicsx.model.weaves import build, crowfoot_satin, orthogonal, plain, satin, twill
+from textile_fenicsx.model.yarn import ConstantSection, Yarn
 
 FABRICS = ["plain", "twill22", "satin4", "ortho"]
 

@@ -9,11 +9,11 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from textile_fenicsx.meshes.midsurface import mid_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, projected_mesh
-from textile_fenicsx.solver import ContactProblem
-from textile_fenicsx.solver.newton import MAX_WEIGHT, _InteriorPoint
-from textile_fenicsx.weaves import build
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+from textile_fenicsx.plate.mesh.projected import MeshOptions, projected_mesh
+from textile_fenicsx.plate.solver import ContactProblem
+from textile_fenicsx.plate.solver.newton import MAX_WEIGHT, _InteriorPoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from outer_solve import BLOCKS, cg_solve, yarn_splits  # noqa: E402

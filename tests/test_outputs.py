@@ -13,12 +13,12 @@ import pytest
 from mpi4py import MPI
 
 from conftest import REPO
-from textile_fenicsx.correct import CorrectionOptions
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.metrics import measure
-from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.tg3 import read_tg3
-from textile_fenicsx.weaves import build
+from textile_fenicsx.correction.correct import CorrectionOptions
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.model.metrics import measure
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.pipeline.stages import Settings, run
+from textile_fenicsx.plate.mesh.projected import MeshOptions
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +57,8 @@ def test_correction_of_a_manufactured_lift_and_twist(satin_run):
     a, b = 0.05, 0.02
     w = dolfinx.fem.Function(ms.V)
     w.interpolate(lambda x: a + b * (x[1] - y_c))
-    from textile_fenicsx.correct import corrected_yarn
-    from textile_fenicsx.stations import stations
+    from textile_fenicsx.correction.correct import corrected_yarn
+    from textile_fenicsx.correction.stations import stations
 
     new = corrected_yarn(t, i, w, spacing=0.25, n_points=24, section_tol=0.0)  # every station's section
     s = stations(yarn, 0.25)
@@ -120,9 +120,9 @@ def test_binder_legs_shortened_in_the_correction_do_not_fold(reference_dir, comm
     # real run) and the binders held 3.8 % less per length than their sections' areas say. The
     # legs now shorten evenly in height and the stations follow the corners: no fold, and the
     # volume per length of each binder's surface within 0.2 %
-    from textile_fenicsx.correct import corrected_textile
-    from textile_fenicsx.legs import split_steep
-    from textile_fenicsx.verify import tube
+    from textile_fenicsx.correction.correct import corrected_textile
+    from textile_fenicsx.correction.legs import split_steep
+    from textile_fenicsx.correction.verify import tube
 
     t = read_tg3(reference_dir / "models" / "ortho.tg3")
     split = split_steep(t, 0.25)
@@ -149,9 +149,9 @@ def test_a_crown_that_ends_on_a_cell_side_is_moved_there_by_its_own_plate(comm):
     # strip over its own span in x with w linear in x (P1 holds it exactly): every point of a
     # crown, its ends and a point 0.01 mm past the side included, takes that line at its own x
     import dolfinx
-    from textile_fenicsx.config import load_model
-    from textile_fenicsx.correct import _Crowns
-    from textile_fenicsx.legs import split_steep
+    from textile_fenicsx.correction.correct import _Crowns
+    from textile_fenicsx.correction.legs import split_steep
+    from textile_fenicsx.io.config import load_model
 
     t = load_model(REPO / "reference" / "fabrics" / "ortho_w2f3_fibres_refine_t1.7.tg3")
     split = split_steep(t, 0.25)
@@ -193,12 +193,12 @@ def test_a_yarn_at_the_node_limit_is_corrected_into_a_model_that_reads_back(refe
 
     from scipy.spatial import cKDTree
 
-    from textile_fenicsx import limits
-    from textile_fenicsx.config import load_model, save_model
-    from textile_fenicsx.correct import corrected_textile
-    from textile_fenicsx.textile import Textile
-    from textile_fenicsx.tg3 import write_tg3
-    from textile_fenicsx.yarn import Yarn
+    from textile_fenicsx.common import limits
+    from textile_fenicsx.correction.correct import corrected_textile
+    from textile_fenicsx.io.config import load_model, save_model
+    from textile_fenicsx.io.tg3 import write_tg3
+    from textile_fenicsx.model.textile import Textile
+    from textile_fenicsx.model.yarn import Yarn
 
     t = read_tg3(reference_dir / "models" / "plain.tg3")
     y = t.yarns[0]
@@ -207,7 +207,7 @@ def test_a_yarn_at_the_node_limit_is_corrected_into_a_model_that_reads_back(refe
     model = Textile(t.cell, [dense] + t.yarns[1:], name="dense", resolution=t.resolution)
     model.check_size()  # accepted on input
     lift = _constant_displacements(model, [0.01] * 4, comm)
-    with caplog.at_level(logging.WARNING, logger="textile_fenicsx.correct"):
+    with caplog.at_level(logging.WARNING, logger="textile_fenicsx.correction.correct"):
         corrected = corrected_textile(model, lift, 0.25, 64)
         assert not caplog.records
         fine = corrected_textile(model, lift, 0.001, 32)
@@ -231,8 +231,8 @@ def test_the_stations_of_every_yarn_fit_the_bounds_a_model_is_read_back_with(ref
     # item 5: the corrected model's master nodes in all (and its surface points, 4 stations per
     # segment of the section points) are bounded as a read model's are: every yarn's share is cut
     # in proportion when the stations asked for are more
-    from textile_fenicsx import limits
-    from textile_fenicsx.stations import budgets, stations
+    from textile_fenicsx.common import limits
+    from textile_fenicsx.correction.stations import budgets, stations
 
     t = read_tg3(reference_dir / "models" / "satin4.tg3")
     wanted = [len(stations(y, 0.25)) for y in t.yarns]
@@ -260,7 +260,7 @@ def test_figures_drawn_in_the_background_are_the_run_s(satin_run, mpi_tmp_path):
     # 2.6 per cutting line and 0.3 for the legend's one row of 8 yarns high, at 110 dpi, two lines on
     # this satin: along its first yarn, which is the most crimped, and between it and the next), and
     # the before and after views are different pictures
-    from textile_fenicsx.outputs import cut_lines
+    from textile_fenicsx.pipeline.outputs import cut_lines
 
     result, _ = satin_run
     out = result.write(mpi_tmp_path / "run", fields=False, surfaces=False)
@@ -280,7 +280,7 @@ def test_a_figure_that_cannot_be_drawn_is_an_error_naming_it_and_nothing_is_writ
     # the child finds no X server (no DISPLAY, no Xvfb on its PATH) and ends: the run's write
     # raises an OSError naming the first figure's place in the output folder, with the child's
     # reason, and the folder does not appear (staged: written completely or not at all)
-    from textile_fenicsx.figures import Painter
+    from textile_fenicsx.plot.figures import Painter
 
     result, _ = satin_run
     monkeypatch.delenv("DISPLAY", raising=False)
@@ -299,7 +299,7 @@ def test_a_figure_that_cannot_be_drawn_is_an_error_naming_it_and_nothing_is_writ
 def test_a_bad_figure_job_names_its_file_and_the_painter_goes_on(satin_run, tmp_path):
     # one job that fails (no textile to draw) is reported for its own target; the painter keeps
     # drawing the jobs after it
-    from textile_fenicsx.figures import Painter
+    from textile_fenicsx.plot.figures import Painter
 
     result, corrected = satin_run
     with Painter() as painter:
@@ -333,7 +333,7 @@ def test_a_figure_process_killed_hard_is_named_and_leaves_no_x_server(satin_run,
     # the child ends without a word (killed, as a segfault in VTK would end it) after starting its
     # own X server: the figure it owed is an error naming it, and closing the painter ends the
     # child's process group, the orphaned X server with it
-    from textile_fenicsx.figures import Painter
+    from textile_fenicsx.plot.figures import Painter
 
     result, corrected = satin_run
     line = [("a line", (0.0, 1.0), (5.6, 1.0))]
@@ -362,7 +362,7 @@ def test_fields_open_in_meshio_and_pyvista(satin_run, mpi_tmp_path):
     import meshio
     import pyvista
 
-    from textile_fenicsx.outputs import FIELD_NAMES, write_fields
+    from textile_fenicsx.pipeline.outputs import FIELD_NAMES, write_fields
 
     result, _ = satin_run
     write_fields(result, mpi_tmp_path / "fields")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from textile_fenicsx.verification import AnisotropicPlate, convergence_rates, solve_manufactured_plate
+from textile_fenicsx.plate.verification import AnisotropicPlate, convergence_rates, solve_manufactured_plate
 
 
 @pytest.mark.mpi
@@ -66,9 +66,9 @@ def _negative_pivots(msh, penalty_by_cell_diameter: bool) -> int:
 
     import dolfinx
     import dolfinx.fem.petsc
-    from textile_fenicsx.forms import c0ip_bending, foundation
-    from textile_fenicsx.solver import PlateParameters
-    from textile_fenicsx.solver.linear import DIRECT_LDLT, DirectSolver, negative_pivots
+    from textile_fenicsx.plate.forms import c0ip_bending, foundation
+    from textile_fenicsx.plate.solver import PlateParameters
+    from textile_fenicsx.plate.solver.linear import DIRECT_LDLT, DirectSolver, negative_pivots
 
     V = dolfinx.fem.functionspace(msh, ("Lagrange", 2))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)

@@ -10,17 +10,17 @@ from mpi4py import MPI
 
 import dolfinx
 from conftest import REPO
-from textile_fenicsx.errors import TextileError
-from textile_fenicsx.meshes.midsurface import mid_surfaces, plate_extent, plate_surfaces
-from textile_fenicsx.meshes.projected import MeshOptions, plate_mesh, projected_mesh
-from textile_fenicsx.pipeline import Settings, run
-from textile_fenicsx.sections import Ellipse, Polygon
-from textile_fenicsx.solver import ContactProblem, Mould, PlateParameters, SolverOptions, solve, solve_problem
-from textile_fenicsx.solver.contact import NONE
-from textile_fenicsx.textile import Cell, Textile
-from textile_fenicsx.verification import convergence_rates, solve_fibre_jump_plate
-from textile_fenicsx.weaves import build
-from textile_fenicsx.yarn import ConstantSection, Yarn
+from textile_fenicsx.common.errors import TextileError
+from textile_fenicsx.model.sections import Ellipse, Polygon
+from textile_fenicsx.model.textile import Cell, Textile
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.model.yarn import ConstantSection, Yarn
+from textile_fenicsx.pipeline.stages import Settings, run
+from textile_fenicsx.plate.mesh.midsurface import mid_surfaces, plate_extent, plate_surfaces
+from textile_fenicsx.plate.mesh.projected import MeshOptions, plate_mesh, projected_mesh
+from textile_fenicsx.plate.solver import ContactProblem, Mould, PlateParameters, SolverOptions, solve, solve_problem
+from textile_fenicsx.plate.solver.pairs import NONE
+from textile_fenicsx.plate.verification import convergence_rates, solve_fibre_jump_plate
 
 
 def integral(expr, dx):
@@ -251,7 +251,7 @@ def test_penalty_geometry_is_insensitive_to_ten_times_ec():
 def _max_difference(a, b, field: str = "w") -> float:
     """Largest difference of two runs' displacements (or thickness changes: field "dt") at the same
     points (a's dof points) [mm]."""
-    from textile_fenicsx.fields import evaluate
+    from textile_fenicsx.plate.point_values import evaluate
 
     worst = 0.0
     for wa, wb, ya in zip(getattr(a.solution, field), getattr(b.solution, field), a.midsurfaces.yarns):
@@ -326,7 +326,7 @@ def test_a_node_seen_by_several_ranks_is_claimed_by_one():
     # _claim's rule on made-up keys: each key held by any rank is taken by exactly one of its holders,
     # its owner when the owner holds it (keys 1, 2), else the lowest-ranked holder (3, 4: their owner
     # holds neither)
-    from textile_fenicsx.solver.contact import _claim
+    from textile_fenicsx.plate.solver.pairs import _claim
 
     comm = MPI.COMM_WORLD
     held = {0: ([1, 2, 3], [0, 1, 1]), 1: ([2, 4], [1, 0])} if comm.size == 2 else {0: ([1, 2], [0, 0])}
@@ -346,9 +346,9 @@ def test_a_renewed_problem_is_the_problem_built_afresh(method):
     # load (the apart spring's -T^T J g0 moved by -T^T J dg0: J does not depend on g) and
     # matrices must be those of a problem built from scratch on the changed mid-surfaces, to
     # round-off, on any partition; with a mould, the platens' rows too after the mould moved
-    from textile_fenicsx.config import load_model
-    from textile_fenicsx.meshes.midsurface import widen_margins
-    from textile_fenicsx.slopes import slope_thickness
+    from textile_fenicsx.correction.slopes import slope_thickness
+    from textile_fenicsx.io.config import load_model
+    from textile_fenicsx.plate.mesh.midsurface import widen_margins
 
     ms = mid_surfaces(projected_mesh(load_model(REPO / "reference" / "models" / "satin4.tg3"), MeshOptions(0.5)))
     options = SolverOptions(method=method)
@@ -374,7 +374,7 @@ def test_a_renewed_problem_is_the_problem_built_afresh(method):
         renewed.renew(options, Mould(-1.0, 1.0))
     if method == "exact":  # with a mould whose platens move (a compaction's steps, with yarns that flatten
         # too), the platens' gaps are read again; the pairs' and the packing's stay
-        from textile_fenicsx.solver import Compaction
+        from textile_fenicsx.plate.solver import Compaction
 
         for law in (None, Compaction(50.0, 0.6)):
             moulded = ContactProblem(ms, options=SolverOptions(), mould=Mould(-1.0, 1.0), compaction=law)
@@ -398,9 +398,9 @@ def test_widened_margins_keep_the_gap_field_apart_between_the_nodes():
     # nodes, can still be negative between them (satin4.tg3 at seed 0.5: 5.6e-6 mm^3 of it).
     # widen_margins gives the cell's nodes that depth as more margin; solved again, the field's
     # negative part (the integral of max(0, -g) over the overlaps) is gone (measured: 0).
-    from textile_fenicsx.config import load_model
-    from textile_fenicsx.meshes.midsurface import widen_margins
-    from textile_fenicsx.solver import solve_problem
+    from textile_fenicsx.io.config import load_model
+    from textile_fenicsx.plate.mesh.midsurface import widen_margins
+    from textile_fenicsx.plate.solver import solve_problem
 
     ms = mid_surfaces(projected_mesh(load_model(REPO / "reference" / "models" / "satin4.tg3"), MeshOptions(0.5)))
     first = solve_problem(ContactProblem(ms))
@@ -419,7 +419,7 @@ def test_model_margins_add_the_overlap_the_corrected_model_shows():
     # model_margins gives the crossing's nodes d more margin, and a model that only touches adds none
     from dataclasses import replace
 
-    from textile_fenicsx.meshes.midsurface import model_margins
+    from textile_fenicsx.plate.mesh.midsurface import model_margins
 
     t = crossing_strips(flat=True)
     ms = mid_surfaces(projected_mesh(t, MeshOptions(0.25)))
@@ -464,7 +464,7 @@ def test_contact_forms_are_the_derivatives_of_the_energy(crossing_mesh):
     # The contact residual and Jacobian are ufl.derivative of the energy 1/2 k(g) g^2: at a gap
     # that is negative over part of the overlap they equal the hand-written k(g) g v and k(g) u v,
     # and the residual is the energy's directional derivative (a finite difference, to 1e-7).
-    from textile_fenicsx.forms import contact_forms, stiffness
+    from textile_fenicsx.plate.forms import contact_forms, stiffness
 
     y = crossing_mesh.yarns[0]
     g = dolfinx.fem.Function(y.V)
@@ -499,7 +499,7 @@ def test_the_lumped_spring_is_diagonal_and_holds_the_consistent_springs_total(cr
     # positive (HRZ lumping: no entry couples one node's thickness change to another's), and on
     # gaps of degree 1 it is the consistent spring (the rule integrates degree 1 exactly): a
     # constant gap's stiffness 1^T J 1 is Et x area, a linear gap's u^T J 1 the same in both
-    from textile_fenicsx.forms import contact_forms
+    from textile_fenicsx.plate.forms import contact_forms
 
     y = crossing_mesh.yarns[0]
     g = dolfinx.fem.Function(y.V)
@@ -531,7 +531,7 @@ def test_direct_solver_applies_its_options_and_removes_them():
     # the first factorisation, then removed from PETSc's global database
     from petsc4py import PETSc
 
-    from textile_fenicsx.solver.linear import DIRECT_LDLT, DirectSolver
+    from textile_fenicsx.plate.solver.linear import DIRECT_LDLT, DirectSolver
 
     n = 10
     A = PETSc.Mat().createAIJ(((PETSc.DECIDE, n), (PETSc.DECIDE, n)), nnz=1, comm=MPI.COMM_WORLD)
@@ -562,7 +562,7 @@ def test_slope_thickness_grows_with_the_slope_and_never_thins():
     # height); where it falls (w = -z0, flat) it keeps t0: the corrected sections are laid along
     # the centreline's slope, and a plate thinner than they turn out left them overlapping
     # (satin4 h0.3: plates 2 % thinner at a flank than the corrected yarn, 0.009 mm deep)
-    from textile_fenicsx.slopes import slope_thickness
+    from textile_fenicsx.correction.slopes import slope_thickness
 
     L, A = 4.0, 0.2
     k = 2 * np.pi / L
@@ -606,7 +606,7 @@ def test_the_fixed_pattern_sums_entries_as_a_sparse_matrix_does():
     # FixedPattern routes (row, column, value) given on any rank to the row's owner and sums
     # repeats; its matrix must equal the dense sum of every triplet, and hold every variable
     # (row, column) in its pattern even where the sum is 0 (a contact entry that is 0 now)
-    from textile_fenicsx.solver.pattern import FixedPattern
+    from textile_fenicsx.plate.solver.pattern import FixedPattern
 
     comm, n = MPI.COMM_WORLD, 37
     rng = np.random.default_rng(7 + comm.rank)
@@ -648,8 +648,8 @@ def test_a_warm_start_takes_fewer_steps_than_a_cold_one_to_the_same_answer(name)
     # agree within the stopping tolerances (1e-6 mm each); a warm start is worth having only if
     # it is shorter. Its slacks were once set to 1e-5 mm at nodes the thicker plates penetrate by
     # 3.6 um: 23 steps against a cold start's 16 on the crowfoot satin (plain: 14 and 14)
-    from textile_fenicsx.meshes.midsurface import widen_margins
-    from textile_fenicsx.slopes import slope_thickness
+    from textile_fenicsx.correction.slopes import slope_thickness
+    from textile_fenicsx.plate.mesh.midsurface import widen_margins
 
     ms = mid_surfaces(projected_mesh(build(name), MeshOptions(0.5)))
     first = solve_problem(ContactProblem(ms))
@@ -672,7 +672,7 @@ def test_a_loose_first_solve_shortens_the_run_and_keeps_its_answer(name, monkeyp
     # the yarn height (the issue's bound for "the same model"; measured 1.8e-6 mm on the crowfoot
     # satin, 2e-7 on plain). Compared as corrected models, which are whole on every rank (the
     # two runs' meshes may be partitioned differently)
-    from textile_fenicsx import pipeline
+    from textile_fenicsx.pipeline import stages as pipeline
 
     t = build(name)
     loose = pipeline.run(t, pipeline.Settings(MeshOptions(0.5)))
@@ -695,7 +695,7 @@ def test_a_step_cut_short_at_the_precision_floor_ends_the_solve():
     # direction, 4.3e-6 mm, is cut to 1.8e-7 of itself. Reading only the full step, the iteration
     # went on for 30 more steps (mu rising from 2e-13 to 2e-5 and falling again) to 55 in all; the
     # direction shows the iterate is already within ten times the tolerance of where Newton points
-    from textile_fenicsx.tg3 import read_tg3
+    from textile_fenicsx.io.tg3 import read_tg3
 
     result = run(read_tg3(REPO / "reference" / "fabrics" / "twill31_w0.9_h0.2_ellipse.tg3"),
                  Settings(MeshOptions(0.5)))

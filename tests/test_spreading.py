@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from textile_fenicsx.sections import Ellipse, Flat, Hybrid, Lenticular, Polygon, PowerEllipse
-from textile_fenicsx.spreading import ROOM_MARGIN, ROUND_TOLERANCE, Rounds, room, widen
-from textile_fenicsx.weaves import build
+from textile_fenicsx.model.sections import Ellipse, Flat, Hybrid, Lenticular, Polygon, PowerEllipse
+from textile_fenicsx.model.weaves import build
+from textile_fenicsx.pipeline.spreading import ROOM_MARGIN, ROUND_TOLERANCE, Rounds, room, widen
 
 # our loose plain weave: yarns 1.2 mm wide at 2 mm spacing (width / spacing 0.6)
 LOOSE = {"spacing": 2.0, "width": 1.2, "height": 0.4}
@@ -22,7 +22,7 @@ LOOSE = {"spacing": 2.0, "width": 1.2, "height": 0.4}
 def test_a_spread_section_is_f_times_as_wide_and_keeps_its_area(section):
     # (s, u) -> (f s, u / f) has determinant 1: the same area, so the same fibres at the same
     # fibre fraction at rest (spreading.py)
-    from textile_fenicsx.spreading import _widened_section
+    from textile_fenicsx.pipeline.spreading import _widened_section
 
     f = 1.37
     spread = _widened_section(section, f)
@@ -39,7 +39,7 @@ def test_a_spread_section_is_f_times_as_wide_and_keeps_its_area(section):
 
 @pytest.mark.serial
 def test_a_spread_textile_keeps_each_yarns_fibres():
-    from textile_fenicsx.compaction import yarn_fibre_areas
+    from textile_fenicsx.pipeline.compaction import yarn_fibre_areas
 
     textile = build("plain", **LOOSE)
     areas = yarn_fibre_areas(textile)  # no fibre data: 0.65 of the section, with a warning
@@ -61,13 +61,13 @@ def test_the_room_beside_a_yarn_is_its_gap_to_the_yarns_parallel_to_it():
         assert room(textile) == pytest.approx(np.full(4, spacing / width * (1 - ROOM_MARGIN)), rel=1e-9)
     # a yarn's continuation (its own image along its length) and yarns one above another (plies in
     # register, already overlapping in plan) are not beside it: a stack has its one ply's room
-    from textile_fenicsx.plies import stack
+    from textile_fenicsx.model.plies import stack
 
     two = stack(build("plain", **LOOSE), 2, offsets=[(0.0, 0.0), (0.0, 0.0)])
     assert room(two) == pytest.approx(np.full(8, 2.0 / 1.2 * (1 - ROOM_MARGIN)), rel=1e-9)
     # a single yarn along x in a cell 3 mm wide: its neighbour is its own image 3 mm away
-    from textile_fenicsx.textile import Cell, Textile
-    from textile_fenicsx.yarn import ConstantSection, Yarn
+    from textile_fenicsx.model.textile import Cell, Textile
+    from textile_fenicsx.model.yarn import ConstantSection, Yarn
 
     yarn = Yarn([[0, 1.5, 0], [1.5, 1.5, 0], [3, 1.5, 0]], ConstantSection(Ellipse(1.0, 0.2)), "linear",
                 repeats=[[3, 0, 0], [0, 3, 0]])
@@ -103,9 +103,9 @@ def test_the_rounds_close_on_the_widths_fixed_point():
 
 
 def _loose_pressed(spreading: float, comm=MPI.COMM_WORLD):
-    from textile_fenicsx.compaction import CompactionTarget
-    from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.pipeline import Settings, run
+    from textile_fenicsx.pipeline.compaction import CompactionTarget
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
 
     target = CompactionTarget(50.0, vf=0.5, spreading=spreading)
     return run(build("plain", **LOOSE), Settings(MeshOptions(0.5), compaction=target), comm=comm)
@@ -131,7 +131,7 @@ def test_a_loose_plain_weave_reaches_vf_half_only_by_spreading():
         assert np.all(np.array(r.spreading) >= rooms * (1 - ROUND_TOLERANCE))
         # the fibres are the model's: each corrected yarn carries its fibre area, 0.65 of the
         # unspread section's; their volume follows the plates' to 1 %; none beyond the packing
-        from textile_fenicsx.compaction import yarn_fibre_areas
+        from textile_fenicsx.pipeline.compaction import yarn_fibre_areas
 
         assert yarn_fibre_areas(r.corrected) == pytest.approx(yarn_fibre_areas(kept.textile), rel=1e-12)
         assert np.max(np.abs(m["yarn_volume_per_length_change"])) <= 0.01
@@ -161,8 +161,8 @@ def test_spreading_input_errors_exit_2(tmp_path):
 def test_a_round_that_fails_ends_the_rounds_and_the_last_good_one_is_kept(monkeypatch):
     # the first run (widths kept) stops short of Vf 0.5; the spread fabric's run then fails: the
     # rounds end, and the Run returned is the first, with its widths (none spread) and its reason
-    from textile_fenicsx import pipeline
-    from textile_fenicsx.errors import SolverError
+    from textile_fenicsx.common.errors import SolverError
+    from textile_fenicsx.pipeline import stages as pipeline
 
     real, calls = pipeline._remeshed, []
 

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from textile_fenicsx.config import load_model
-from textile_fenicsx.errors import GeometryError, MeshError, TextileError
-from textile_fenicsx.meshes import tetra_checks as checks
-from textile_fenicsx.meshes.tetra import TetOptions, tet_mesh
-from textile_fenicsx.meshes.volume import Box, periodic_mismatch
-from textile_fenicsx.solver import SolverOptions
+from textile_fenicsx.common.errors import GeometryError, MeshError, TextileError
+from textile_fenicsx.io.config import load_model
+from textile_fenicsx.plate.solver import SolverOptions
+from textile_fenicsx.volume import tetra_checks as checks
+from textile_fenicsx.volume.box import Box, periodic_mismatch
+from textile_fenicsx.volume.tetra import TetOptions, tet_mesh
 
 GAP = 0.04  # the least gap the small case is solved and meshed with [mm]
 
@@ -42,7 +42,7 @@ def test_only_the_face_nodes_are_snapped_and_each_onto_its_own_image():
     off its image. Snapping every node near the face onto it and onto the nearest image put both
     on one place, and the tet of the skin node, the face node and two more face nodes went flat
     (ortho_w3f4: 96 flat tets). Only the face nodes move; each - node takes its nearest + node."""
-    from textile_fenicsx.meshes.tetra import _snap_periodic
+    from textile_fenicsx.volume.tetra import _snap_periodic
 
     lo, hi = np.zeros(3), np.ones(3)
     points = np.array([[0.0, 0.5, 0.5], [0.0, 0.6, 0.5], [0.0, 0.5, 0.6],       # - face
@@ -65,7 +65,7 @@ def test_a_flat_tet_is_refused_with_its_place():
     """Four nodes of one plane (3e-10 mm off it: 5e-13 mm^3 in a 1 mm^3 box, below FLAT) on the box's
     + x side, as gmsh left them where a binder's leg runs along the side of ortho_w3f4; then the
     same tet inside the box. A tet of a fifth of the box's volume passes."""
-    from textile_fenicsx.meshes.tetra import _refuse_flat
+    from textile_fenicsx.volume.tetra import _refuse_flat
 
     lo, hi = np.zeros(3), np.ones(3)
     points = np.array([[1.0, 0.2, 0.2], [1.0, 0.3, 0.2], [1.0, 0.2, 0.3], [1 - 3e-10, 0.26, 0.26],
@@ -171,8 +171,8 @@ def test_the_reference_volume_is_the_yarn_surface_the_rays_converge_to(reference
     nearer at 800: they converge to it."""
     from dataclasses import replace
 
-    from textile_fenicsx.meshes.tetra import model_volumes, ray_volumes
-    from textile_fenicsx.verify import tube
+    from textile_fenicsx.correction.verify import tube
+    from textile_fenicsx.volume.tetra import model_volumes, ray_volumes
 
     def traced(textile, points):
         return np.array([tube(y, replace(textile.resolution, section_points=points)).volume for y in textile.yarns])
@@ -194,8 +194,8 @@ def _spline_area(points: np.ndarray) -> float:
     (tetra_solids.section_curve, as the skins use it), read on a fine mesh."""
     import gmsh
 
-    from textile_fenicsx.meshes.tetra import _nodes
-    from textile_fenicsx.meshes.tetra_solids import section_curve
+    from textile_fenicsx.volume.tetra import _nodes
+    from textile_fenicsx.volume.tetra_solids import section_curve
 
     started = not gmsh.isInitialized()
     if started:
@@ -227,7 +227,7 @@ def test_the_section_splines_hold_boxy_sections():
     area, 1 % of each yarn's meshed volume. Superellipses |s/a|^m + |u/b|^m = 1 of that size,
     as 64-vertex polygons (the corrected model's own sections): the spline through the mesher's
     default points holds each one's area within 0.15 %; through 24 it loses more than 0.5 %."""
-    from textile_fenicsx.sections import Polygon
+    from textile_fenicsx.model.sections import Polygon
 
     angle = 2 * np.pi * np.arange(64) / 64
     c, s = np.cos(angle), np.sin(angle)
@@ -275,7 +275,7 @@ def test_flat_tets_inside_the_box_are_meshed_again_smaller(loose_plain, comm, mo
     them: the second, at 0.85 x 0.5 mm, is returned, periodic and whole. Flat tets on a side of the
     box are not meshed again (a yarn's surface runs along the side: a smaller size does not help),
     and a second failure names both sizes, on every rank."""
-    from textile_fenicsx.meshes import tetra
+    from textile_fenicsx.volume import tetra
 
     gapped, _ = loose_plain
     real, calls = tetra._refuse_flat, []
@@ -311,7 +311,7 @@ def test_lost_yarn_fails(loose_plain, comm, monkeypatch):
     """A yarn that OCC's cut by the box loses (here: no skin is made for yarn 0) fails the mesh,
     naming the yarn and its volumes, on every rank: the mesh that would be written holds none of
     it (before, the command succeeded with a report of -100 %)."""
-    from textile_fenicsx.meshes import tetra_solids
+    from textile_fenicsx.volume import tetra_solids
 
     chains = tetra_solids.chains
     def without_yarn_0(textile, i, *args, **kwargs):
@@ -330,7 +330,7 @@ def test_surfaces_that_lose_volume_are_meshed_finer(loose_plain, comm, monkeypat
     is meshed again with 12 (still 1.3 %), then 24 (0.9 %), and the tets' yarn volumes are within
     1 %. The volume enclosed by the last surface mesh (tetra_checks.enclosed_volume) is what the
     tets of each yarn then hold."""
-    from textile_fenicsx.meshes import tetra
+    from textile_fenicsx.volume import tetra
 
     enclosed, seen = tetra._enclosed, []
     def record(*args):
@@ -362,10 +362,10 @@ def test_stations_follow_the_turns_where_the_skin_does_not_fold():
     A yarn that turns on 0.29 mm keeps the finer stations, which do not fold there."""
     from types import SimpleNamespace
 
-    from textile_fenicsx.meshes import tetra_solids as solids
-    from textile_fenicsx.sections import Ellipse
-    from textile_fenicsx.yarn import Yarn
-    from textile_fenicsx.yarn_sections import ConstantSection
+    from textile_fenicsx.model.sections import Ellipse
+    from textile_fenicsx.model.yarn import Yarn
+    from textile_fenicsx.model.yarn_sections import ConstantSection
+    from textile_fenicsx.volume import tetra_solids as solids
 
     def yarn(r):
         nodes = [[0, 0, 0], [1, 0, 0], [1 + r, r, 0], [1 + r, 1 + r, 0]]
@@ -394,10 +394,10 @@ def test_a_station_whose_skin_folds_between_nodes_is_left_out():
     the surface mesh before.)"""
     from types import SimpleNamespace
 
-    from textile_fenicsx.meshes import tetra_solids as solids
-    from textile_fenicsx.sections import Ellipse
-    from textile_fenicsx.yarn import Yarn
-    from textile_fenicsx.yarn_sections import ConstantSection
+    from textile_fenicsx.model.sections import Ellipse
+    from textile_fenicsx.model.yarn import Yarn
+    from textile_fenicsx.model.yarn_sections import ConstantSection
+    from textile_fenicsx.volume import tetra_solids as solids
 
     tight = Yarn([[0, 0, 0], [1, 0, 0], [1.1, 0.1, 0], [1.1, 1.1, 0]], ConstantSection(Ellipse(0.6, 0.2)),
                  periodic=False, name="binder")
@@ -416,7 +416,7 @@ def test_stations_beside_a_side_are_left_out_only_where_the_yarn_crosses_it():
     yarn along x, stations 0.05 mm apart); a leg running down the side (a binder's, 0.004 mm from
     it) keeps all its stations where legs are kept (all but its ends are left out otherwise), and
     a yarn that runs along y, through the other sides only, keeps all its own."""
-    from textile_fenicsx.meshes import tetra_sides
+    from textile_fenicsx.volume import tetra_sides
 
     lo, length = np.array([0.0, -1.0, 0.0]), np.array([4.0, 2.0, 1.0])
     crossing = np.stack([np.linspace(-0.975, 0.975, 40), np.zeros(40), np.zeros(40)], axis=1)
@@ -435,9 +435,9 @@ def test_legs_keep_their_stations_only_where_leaving_them_out_strays_far(referen
     their stations moves the skins by more than 10 x the 5 % gap (13.5-14.6 x on the sweep's
     corrected orthogonal weaves): they keep them. The plain weave's yarns cross the sides at a
     shallow angle (at most 0.12 x): stations beside the sides are left out, as before."""
-    from textile_fenicsx.meshes import tetra_sides
-    from textile_fenicsx.meshes import tetra_solids as solids
-    from textile_fenicsx.meshes.tetra import default_gap
+    from textile_fenicsx.volume import tetra_sides
+    from textile_fenicsx.volume import tetra_solids as solids
+    from textile_fenicsx.volume.tetra import default_gap
 
     o = TetOptions()
     for name, legs in (("ortho", True), ("plain", False)):
@@ -457,8 +457,8 @@ def test_the_box_moves_into_the_gaps_between_the_yarns_along_its_sides_clear_of_
     box moves to midway between a leg and the next column: x = 2.8 k +- 0.095 (to 0.002 mm: the legs
     lean by 0.001). The cell's side x = 0 is in such a gap; the places tried next are the four
     beside x = +-2.8 (nearest first), then along x beside 5.6, and only then along y."""
-    from textile_fenicsx.meshes import tetra_sides
-    from textile_fenicsx.meshes import tetra_solids as solids
+    from textile_fenicsx.volume import tetra_sides
+    from textile_fenicsx.volume import tetra_solids as solids
 
     t = load_model(reference_dir / "models" / "ortho.tg3")
     o = TetOptions()
@@ -489,7 +489,7 @@ def test_a_yarn_lost_by_the_cut_or_unpaired_faces_move_the_box(loose_plain, comm
     there), it moves on, to the next such place (2 mm along y: the only gap along x is taken),
     and the mesh is made there: periodic, every yarn's volume within 1 %, and the move in the
     report."""
-    from textile_fenicsx.meshes import tetra_solids
+    from textile_fenicsx.volume import tetra_solids
 
     build, pair, tried = tetra_solids.build, tetra_solids.periodic_pairs, []
     def lost_at_the_origin(textile, lo, hi, *args, **kwargs):
@@ -572,7 +572,7 @@ def test_the_z_bounds_of_a_skin_are_those_of_its_sections_and_their_splines():
     most: 2.1e-4 r); a ruled skin never swings past its sections between stations."""
     import gmsh
 
-    from textile_fenicsx.meshes import tetra_solids
+    from textile_fenicsx.volume import tetra_solids
 
     r, h = 0.2, 0.3
     angle = 2 * np.pi * np.arange(48) / 48
@@ -601,7 +601,7 @@ def test_an_uncarved_matrix_is_seen():
     box's sides and every other face is shared with the matrix."""
     import gmsh
 
-    from textile_fenicsx.meshes import tetra_solids
+    from textile_fenicsx.volume import tetra_solids
 
     lo, hi = np.zeros(3), np.ones(3)
     gmsh.initialize(interruptible=False)
@@ -632,7 +632,7 @@ def test_an_uncarved_matrix_is_fragmented_again(loose_plain, comm, monkeypatch):
     """Where the quick fragment leaves the matrix uncarved around a yarn (made to happen here), the
     box is fragmented again with OCC's partial glue, and the mesh is made as usual: periodic,
     every yarn's volume within 1 %, no element in two yarns."""
-    from textile_fenicsx.meshes import tetra_solids
+    from textile_fenicsx.volume import tetra_solids
 
     checked = []
     def none_carved(volume, lo, hi):
@@ -656,8 +656,8 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     """The corrected loose plain weave at a coarse size: periodic nodes, no inverted or empty tet,
     phases consistent with the model, yarn volumes within 1 %, quality above the stated bound,
     fibre directions on the path; written as .msh with one named group per phase."""
-    from textile_fenicsx.volume_files import write_msh
-    from textile_fenicsx.volumes import VolumeOptions, volume_mesh
+    from textile_fenicsx.volume.files import write_msh
+    from textile_fenicsx.volume.stage import VolumeOptions, volume_mesh
 
     gapped, _ = loose_plain
     mesh = volume_mesh(gapped, VolumeOptions("tet", 0.3, gap=GAP, yarn_vf=0.6), comm)
@@ -697,13 +697,13 @@ def test_the_api_meshes_the_satin_in_a_process_without_dolfinx(reference_dir, tm
     import sys
 
     from textile_fenicsx.api import solve
-    from textile_fenicsx.meshes.tetra import default_gap
-    from textile_fenicsx.tg3 import write_tg3
+    from textile_fenicsx.io.tg3 import write_tg3
+    from textile_fenicsx.volume.tetra import default_gap
 
     textile = load_model(reference_dir / "models" / "satin4.tg3")
     gap = default_gap(textile, TetOptions())
     model = write_tg3(solve(textile, seed=0.5, solver=SolverOptions(min_gap=gap)).corrected, tmp_path / "c.tg3")
-    script = ("import sys; import textile_fenicsx as tfx; from textile_fenicsx.volumes import VolumeOptions, "
+    script = ("import sys; import textile_fenicsx as tfx; from textile_fenicsx.volume.stage import VolumeOptions, "
               "volume_mesh; m = volume_mesh(tfx.read(sys.argv[1]), VolumeOptions('tet', 0.25, yarn_vf=0.6)); "
               "assert 'dolfinx' not in sys.modules; r = m.report; "
               "print(r['elements'], r['volume']['worst_error_percent'])")
@@ -743,8 +743,8 @@ def test_cornered_sections_traced_again(reference_dir, monkeypatch):
     in the surface mesh and the sections traced again with 48 points: the mesh is made, periodic,
     yarn volumes within 1 %. Without that second tracing, the error names the yarns and the place."""
     from textile_fenicsx.api import solve
-    from textile_fenicsx.meshes import tetra
-    from textile_fenicsx.meshes.tetra import default_gap
+    from textile_fenicsx.volume import tetra
+    from textile_fenicsx.volume.tetra import default_gap
 
     textile = load_model(reference_dir / "fabrics" / "plain_w0.98_h0.2_ellipse_refine.tg3")
     gap = default_gap(textile, TetOptions())

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from textile_fenicsx.config import textile_from_dict
-from textile_fenicsx.errors import FormatError, TextileError
-from textile_fenicsx.meshes.volume import Box, periodic_mismatch
-from textile_fenicsx.volumes import VolumeOptions, mesh_cell, volume_mesh
+from textile_fenicsx.common.errors import FormatError, TextileError
+from textile_fenicsx.io.config import textile_from_dict
+from textile_fenicsx.volume.box import Box, periodic_mismatch
+from textile_fenicsx.volume.stage import VolumeOptions, mesh_cell, volume_mesh
 
 
 def cross_ply(gap: float = 0.1, fibres: dict | None = None):
@@ -68,7 +68,7 @@ def test_volume_files_read_back_with_tags_and_fields(comm, mpi_tmp_path):
     import ufl
 
     import dolfinx
-    from textile_fenicsx.volume_files import read_volume
+    from textile_fenicsx.volume.files import read_volume
 
     t = cross_ply(fibres={"linear_density": 600, "density": 2.55})
     cell = mesh_cell(t, VolumeOptions("voxel", 0.2), comm)
@@ -103,7 +103,7 @@ def test_volume_files_read_back_with_tags_and_fields(comm, mpi_tmp_path):
 @pytest.mark.mpi
 def test_a_file_without_tags_or_fields_is_refused(comm, mpi_tmp_path):
     import dolfinx
-    from textile_fenicsx.volume_files import read_volume
+    from textile_fenicsx.volume.files import read_volume
 
     msh = dolfinx.mesh.create_unit_cube(comm, 2, 2, 2)
     with dolfinx.io.XDMFFile(comm, mpi_tmp_path / "bare.xdmf", "w") as f:
@@ -168,7 +168,7 @@ def test_volume_mesh_command_errors_name_the_culprit(tmp_path):
 
 
 def test_tet_sizes_beyond_the_bounds_are_refused():
-    from textile_fenicsx.meshes.tetra import TetOptions, check_size
+    from textile_fenicsx.volume.tetra import TetOptions, check_size
 
     lo, hi = np.zeros(3), np.array([11.2, 11.2, 1.0])
     with pytest.raises(TextileError, match=r"tet size 0.01 mm would give about 4.64e\+09 tets, more than the limit"):
@@ -190,7 +190,7 @@ def test_volume_mesh_then_homogenise_commands(tmp_path):
     # C lies between the Voigt and Reuss bounds, and its in-plane constants are those of a balanced
     # cross-ply (Ex = Ey, Gxz = Gyz: the model's 90-degree rotation), to the solver's tolerance
     model = tmp_path / "cross_ply.json"
-    from textile_fenicsx.config import save_model
+    from textile_fenicsx.io.config import save_model
 
     save_model(cross_ply(), model)
 

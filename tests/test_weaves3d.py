@@ -6,11 +6,11 @@ import pytest
 from mpi4py import MPI
 
 from conftest import REPO
-from textile_fenicsx import legs
-from textile_fenicsx.config import load_model
-from textile_fenicsx.legs import split_steep
-from textile_fenicsx.meshes.projected import MeshOptions
-from textile_fenicsx.pipeline import AUTO_MOULD_OPENINGS, AUTO_MOULD_SLACK, Settings, run
+from textile_fenicsx.correction import legs
+from textile_fenicsx.correction.legs import split_steep
+from textile_fenicsx.io.config import load_model
+from textile_fenicsx.pipeline.stages import AUTO_MOULD_OPENINGS, AUTO_MOULD_SLACK, Settings, run
+from textile_fenicsx.plate.mesh.projected import MeshOptions
 
 MODELS = {"ortho": REPO / "reference" / "models" / "ortho.tg3",
           "layer-to-layer": REPO / "reference" / "fabrics" / "l2l_w2f3_b3_0011.tg3",

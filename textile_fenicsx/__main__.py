@@ -1,3 +1,3 @@
-from textile_fenicsx.cli import main
+from textile_fenicsx.cli.main import main
 
 raise SystemExit(main())

@@ -22,16 +22,16 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from textile_fenicsx.homogenisation import Homogenised
-    from textile_fenicsx.pipeline import Run
-    from textile_fenicsx.textile import Textile
-    from textile_fenicsx.volumes import CellMesh
+    from textile_fenicsx.model.textile import Textile
+    from textile_fenicsx.pipeline.stages import Run
+    from textile_fenicsx.volume.stage import CellMesh
 
 __all__ = ["build", "homogenise", "read", "show_progress", "solve", "volume_mesh"]
 
 
 def read(path) -> Textile:
     """A textile model from a file: TexGen .tg3, or our .toml / .json (config.py documents them)."""
-    from textile_fenicsx.config import load_model
+    from textile_fenicsx.io.config import load_model
 
     return load_model(Path(path))
 
@@ -39,7 +39,7 @@ def read(path) -> Textile:
 def build(name: str, **sizes) -> Textile:
     """An idealised unit cell from a builder: plain, twill, satin, crowfoot_satin, basket (2D weaves:
     spacing, width, height, thickness [mm], ...) or orthogonal (3D; weaves.py lists the options)."""
-    from textile_fenicsx.weaves import build as _build
+    from textile_fenicsx.model.weaves import build as _build
 
     return _build(name, **sizes)
 
@@ -54,12 +54,12 @@ def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, 
     `solver=SolverOptions(...)`, `correction=CorrectionOptions(...)` (replacing seed/method)."""
     from mpi4py import MPI
 
-    from textile_fenicsx.meshes.projected import MeshOptions
-    from textile_fenicsx.pipeline import Settings, run
-    from textile_fenicsx.solver import SolverOptions
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
+    from textile_fenicsx.plate.solver import SolverOptions
 
     if repeat is not None:
-        from textile_fenicsx.coupon import tile
+        from textile_fenicsx.model.coupon import tile
 
         textile = tile(textile, *repeat, free_edges=free_edges)
     settings.setdefault("mesh", MeshOptions(seed))
@@ -74,7 +74,7 @@ def volume_mesh(textile, kind: str = "voxel", size: float | None = None, comm=No
     its files."""
     from mpi4py import MPI
 
-    from textile_fenicsx.volumes import VolumeOptions, mesh_cell
+    from textile_fenicsx.volume.stage import VolumeOptions, mesh_cell
 
     if not hasattr(textile, "yarns"):
         textile = read(textile)
@@ -91,7 +91,7 @@ def homogenise(volume, fibre="e-glass", matrix="epoxy", comm=None, **options) ->
 
     from textile_fenicsx.homogenisation import HomogeniseOptions
     from textile_fenicsx.homogenisation import homogenise as _homogenise
-    from textile_fenicsx.volume_files import read_volume
+    from textile_fenicsx.volume.files import read_volume
 
     fields = getattr(volume, "fields", None)
     if fields is None:

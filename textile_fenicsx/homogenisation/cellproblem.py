@@ -30,7 +30,7 @@ from petsc4py import PETSc
 
 import dolfinx
 import dolfinx.fem.petsc
-from textile_fenicsx.errors import SolverError
+from textile_fenicsx.common.errors import SolverError
 from textile_fenicsx.homogenisation.periodic import Box, periodic_constraint, pin
 from textile_fenicsx.homogenisation.pmultigrid import prolongation
 

@@ -12,8 +12,8 @@ import numpy as np
 import ufl
 
 import dolfinx
-from textile_fenicsx.forms.conduction import conduction_cell_forms
 from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure, two_level
+from textile_fenicsx.homogenisation.conduction_forms import conduction_cell_forms
 from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ThermalCellProblem"]

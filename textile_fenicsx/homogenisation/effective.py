@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from textile_fenicsx import memory
-from textile_fenicsx.errors import GeometryError
+from textile_fenicsx.common import memory
+from textile_fenicsx.common.errors import GeometryError
 from textile_fenicsx.homogenisation.cellproblem import default_solver
 from textile_fenicsx.homogenisation.conduction import ThermalCellProblem
 from textile_fenicsx.homogenisation.constants import VOIGT_ORDER, bounds, engineering_constants
@@ -97,7 +97,7 @@ class Homogenised:
         """stiffness.json in the folder `out` (created if missing; written whole, by rank 0)."""
         import json
 
-        from textile_fenicsx.files import atomic_path, naming
+        from textile_fenicsx.common.files import atomic_path, naming
 
         out = Path(out)
         comm = comm or MPI.COMM_WORLD

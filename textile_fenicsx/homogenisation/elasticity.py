@@ -14,8 +14,8 @@ import numpy as np
 import ufl
 
 import dolfinx
-from textile_fenicsx.forms.elasticity import elastic_cell_forms
 from textile_fenicsx.homogenisation.cellproblem import CellProblem, cell_measure, two_level
+from textile_fenicsx.homogenisation.elasticity_forms import elastic_cell_forms
 from textile_fenicsx.homogenisation.periodic import Box
 
 __all__ = ["ElasticCellProblem", "rigid_body_modes"]

@@ -15,7 +15,7 @@ import ufl
 from mpi4py import MPI
 
 import dolfinx
-from textile_fenicsx.errors import GeometryError, TextileError
+from textile_fenicsx.common.errors import GeometryError, TextileError
 from textile_fenicsx.homogenisation.constants import (
     frames,
     orthotropic_stiffness,

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from textile_fenicsx.errors import FormatError, TextileError, check_positive
+from textile_fenicsx.common.errors import FormatError, TextileError, check_positive
 from textile_fenicsx.homogenisation.constants import orthotropic_stiffness
 
 __all__ = ["PRESETS", "Isotropic", "Material", "Orthotropic", "TransverselyIsotropic", "chamis", "material",

@@ -16,8 +16,8 @@ from mpi4py import MPI
 from scipy.spatial import cKDTree
 
 import dolfinx
-from textile_fenicsx.errors import GeometryError
-from textile_fenicsx.meshes.volume import Box, periodic_mismatch
+from textile_fenicsx.common.errors import GeometryError
+from textile_fenicsx.volume.box import Box, periodic_mismatch
 
 __all__ = ["Box", "bounding_box", "check_node_periodicity", "check_one_master", "periodic_constraint", "pin"]
 

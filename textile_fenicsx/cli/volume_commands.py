@@ -1,0 +1,153 @@
+"""The commands of the volume stage: `volume-mesh` (and `solve --volume-mesh`), `homogenise`; their
+arguments are in arguments.py."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from textile_fenicsx.common.errors import TextileError
+from textile_fenicsx.common.files import claim_output
+
+if TYPE_CHECKING:
+    from textile_fenicsx.model.textile import Textile
+    from textile_fenicsx.pipeline.stages import Run, Settings
+    from textile_fenicsx.volume.stage import VolumeOptions
+
+# what a volume mesh writes (volume_files.FILES, named here without importing DOLFINx)
+FILES = ("volume.xdmf", "volume.h5", "volume.msh", "volume.vtu", "volume.inp", "mesh_report.json")
+
+VOLUME_DESCRIPTION = (
+    "Mesh the periodic cell of a model (a corrected one, or TexGen's idealised one) as volume elements, "
+    "each matrix or exactly one yarn. voxel: N x N x M hexahedra, the phase read at each centre (a centre "
+    "inside two yarns is counted and reported in mesh_report.json, and goes to the yarn it lies deepest "
+    "in). tet: conforming tetrahedra (gmsh OpenCASCADE); a model whose yarns overlap is refused. The cell "
+    "is the model's in plan and the yarns' own thickness (or --z-range). Writes DIR/volume.xdmf (+.h5: "
+    "mesh, cell tags 'phase' = 0 matrix, 1 + i yarn i, DG0 fields 'direction' and 'yarn_vf'), "
+    "DIR/volume.msh, DIR/volume.vtu, DIR/volume.inp (Abaqus: element sets, *Orientation per element) and "
+    "DIR/mesh_report.json; the folder appears only when complete.")
+
+
+def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """The volume mesh's options (on `volume-mesh`, and on `solve` with the prefix 'volume-')."""
+    p.add_argument(f"--{prefix}size", type=float, metavar="H",
+                   help="element size [mm] (default 0.2 for voxel, 0.35 for tet)")
+    p.add_argument("--yarn-vf", type=float, metavar="V",
+                   help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
+                   "(on solve also the compaction law's relaxed fraction and the metrics' Vf; default: from the "
+                   "fibre data; 0.65 with a warning where there is none)")
+    if not prefix:
+        p.add_argument("--z-range", type=float, nargs=2, metavar=("ZMIN", "ZMAX"),
+                       help="the cell through the thickness [mm] (default: the yarns' own extent; tet: padded by "
+                       "half the gap)")
+        p.add_argument("--gap", type=float, metavar="G",
+                       help="tet: the least gap between yarns the mesh is made for [mm] (default 5 %% of the "
+                       "thinnest yarn's height; the model must hold 0.75 G: solve --min-gap G)")
+
+
+def options_from(args: argparse.Namespace, kind: str, size: float) -> VolumeOptions:
+    """VolumeOptions from the parsed arguments (checked before any work)."""
+    from textile_fenicsx.volume.stage import VolumeOptions
+
+    z_range = getattr(args, "z_range", None)
+    return VolumeOptions(kind=kind, size=size, yarn_vf=args.yarn_vf, z_range=tuple(z_range) if z_range else None,
+                         gap=getattr(args, "gap", None), memory_limit=getattr(args, "memory_limit", None))
+
+
+def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
+    """`solve --volume-mesh KIND`'s options (checked before the solve), or None."""
+    if args.volume_mesh is None:
+        return None
+    if not args.out:
+        raise TextileError("--volume-mesh needs --out DIR (the volume mesh's files go there)")
+    return options_from(args, args.volume_mesh, args.volume_size)
+
+
+def with_gap(settings: Settings, textile: Textile, volume: VolumeOptions | None,
+             min_gap: float) -> tuple[Settings, VolumeOptions | None]:
+    """The solve's settings and the volume options for a tet mesh: the gap the tet mesher needs (5 %
+    of the input's thinnest yarn's height), or --min-gap where given, held by the contact solve (no
+    yarn volume is lost) and the gap the mesh is then made for."""
+    if volume is None or volume.kind != "tet":
+        return settings, volume
+    from textile_fenicsx.volume.tetra import TetOptions, default_gap
+
+    gap = min_gap if min_gap > 0 else default_gap(textile, TetOptions(gap=volume.gap))
+    return replace(settings, solver=replace(settings.solver, min_gap=gap)), replace(volume, gap=gap)
+
+
+def mesh_corrected(run: Run, options: VolumeOptions, out: str) -> Any:
+    """The corrected model's volume mesh, into `out` beside the run's files; its cell through the
+    thickness is the mould's cavity where the mould closed (else the yarns' own extent)."""
+    from textile_fenicsx.volume.stage import mesh_cell
+
+    if run.mould is not None and options.z_range is None:
+        options = replace(options, z_range=(run.mould.bottom, run.mould.top))
+    assert run.corrected is not None
+    cell = mesh_cell(run.corrected, options, run.comm)
+    cell.write(out)
+    if run.comm.rank == 0:
+        print(summary_line(cell.report))
+    return cell
+
+
+def summary_line(report: dict) -> str:
+    """One line on a volume mesh: kind, elements, Vf, the overlap and the worst yarn volume."""
+    errors = [abs(y["relative_error"]) for y in report["yarns"] if y["relative_error"] is not None]
+    overlap = report.get("overlap", {})
+    text = (f"{report['kind']} mesh: {report['elements']} elements, Vf {report['vf']:.3f}, yarn volumes within "
+            f"{100 * max(errors, default=0):.2f} % of the model's")
+    if overlap.get("voxels"):
+        text += f", {overlap['voxels']} voxels ({overlap['volume']:.3g} mm^3) in two yarns"
+    return text
+
+
+def volume_mesh(args: argparse.Namespace) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.io.config import load_model
+    from textile_fenicsx.volume.files import FILES
+    from textile_fenicsx.volume.stage import mesh_cell
+
+    comm = MPI.COMM_WORLD
+    options = options_from(args, args.kind, args.size)
+    textile = load_model(args.model)
+    with claim_output(args.out, inputs=[args.model], names=FILES, force=args.force, comm=comm):
+        cell = mesh_cell(textile, options, comm)
+        cell.write(args.out)
+    if comm.rank == 0:
+        print(summary_line(cell.report))
+        print(Path(args.out) / "volume.xdmf")
+    return 0
+
+
+HOMOGENISE_DESCRIPTION = (
+    "Effective properties of a meshed periodic cell (MESH: the volume.xdmf that volume-mesh wrote): the six "
+    "periodic cell problems of linear elasticity (fluctuation periodic through dolfinx_mpc's multi-point "
+    "constraints, a unit mean strain each; second-order elements; CG + GAMG with the rigid-body near-null "
+    "space) and the three of heat conduction. Yarns are transversely isotropic about their fibre direction, "
+    "their constants from --fibre and --matrix at each element's fibre fraction by Chamis' micromechanics; "
+    "the matrix is --matrix. Writes DIR/stiffness.json: C and S = C^-1 (6 x 6, MPa; Voigt order 11 22 33 "
+    "23 13 12, engineering shear strains), Ex Ey Ez Gxy Gxz Gyz nuxy nuxz nuyz, the Voigt and Reuss bounds, "
+    "the conductivity K (W/(m K)), Vf, dofs, iterations, seconds; prints one line. Runs under mpirun.")
+
+
+def homogenise(args: argparse.Namespace) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.api import homogenise as run_homogenise
+
+    comm = MPI.COMM_WORLD
+    from textile_fenicsx.homogenisation import material
+
+    material(args.fibre), material(args.matrix)  # a bad name or file is refused before any work
+    with claim_output(args.out, inputs=[args.mesh], names=("stiffness.json",), force=True, comm=comm):
+        result = run_homogenise(args.mesh, args.fibre, args.matrix, comm, degree=args.degree,
+                                conduction=not args.no_conduction, memory_limit=args.memory_limit)
+        result.write(args.out, comm)
+    if comm.rank == 0:
+        print(result.summary())
+        print(Path(args.out) / "stiffness.json")
+    return 0

@@ -1,0 +1,73 @@
+"""The memory guard: what a run may take, checked before it is built, and freed memory given back.
+
+Every stage that builds something large (the projected mesh and its solve, a coupon, the volume
+mesh to come) estimates the bytes it will need and calls `check` before it starts, so that a seed
+too fine for the machine is refused in a second with a message that says how much it would need,
+instead of a run that swaps or is killed an hour later:
+
+    from textile_fenicsx.common import memory
+    memory.check(dofs * memory.BYTES_PER_DOF + ranks * memory.BYTES_PER_RANK,
+                 what="mesh seed 0.1 mm would give about 2e6 unknowns and",
+                 hint="use a larger seed", limit_gb=None)
+"""
+
+import ctypes
+import ctypes.util
+
+from textile_fenicsx.common.errors import TextileError
+
+__all__ = ["BYTES_PER_DOF", "BYTES_PER_DOF_OUT_OF_CORE", "BYTES_PER_RANK", "HOMOGENISE_BYTES_PER_DOF",
+           "available_memory", "check", "release_freed_memory"]
+
+# Memory of a plate solve per unknown [bytes], measured by `make bench` (satin coupons, summed peaks:
+# 3.3e5 dofs on 1 and 2 ranks 5.8 and 7.5 kB per dof, 1.3e6 dofs on 2 ranks 6.9 kB per dof, with
+# MUMPS' factors and the outputs), and per process.
+BYTES_PER_DOF = 8e3
+# the same with MUMPS' factors on disk (SolverOptions.out_of_core)
+BYTES_PER_DOF_OUT_OF_CORE = 6e3
+BYTES_PER_RANK = 0.3e9
+# Peak memory of homogenising per elastic unknown and rank [bytes] (matrix, GAMG hierarchy, vectors,
+# mesh, fields), from bench/homogenise_bench.py (2026-11-25): serially, P2 tetrahedra 2.5 kB/dof
+# (0.40, 0.91, 1.59 GB at 100k, 300k, 584k dofs) and Q2 hexahedra 4.4 kB/dof (0.59, 1.47 GB at 100k,
+# 300k: 27-node cells, about twice the entries per row); on 2 ranks the sum over ranks is 5.2 and
+# 6.6 kB/dof (GAMG's parallel setup), so estimates scale the per-dof part with the ranks. First
+# order has fewer entries per row: Q1 hexahedra on 2 ranks peaked at 2.49 GB per rank with 1.17e6
+# dofs (2026-11-26, the voxel satin of README's refinement study), 1.9 kB/dof and rank; P1 tets
+# are not measured, and take P2's figure. Since 2026-11-27 the elastic operator is also held in
+# block CSR (cellproblem.py): bench/volume_bench.py then measured serially 3.5 kB/dof on P2
+# tetrahedra (4.62 and 6.13 GB at 1.33 and 1.76 M dofs) and 6.3 kB/dof on Q2 hexahedra (2.66 GB at
+# 421k); Q1 takes its 2026-11-26 figure plus the copy (27 entries a row, 8.4 bytes each).
+HOMOGENISE_BYTES_PER_DOF = {("tetrahedron", 2): 3.6e3, ("hexahedron", 2): 6.5e3,
+                            ("tetrahedron", 1): 3.6e3, ("hexahedron", 1): 2.3e3}
+
+
+def available_memory() -> float:
+    """Memory the system can give [bytes] (Linux MemAvailable; inf where unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return float("inf")
+
+
+def check(bytes_needed: float, what: str, hint: str, limit_gb: float | None = None) -> None:
+    """Raise TextileError if a stage would need more than `limit_gb` [GB] (None: the memory
+    available now). The message reads "{what} need about N GB, more than {the limit} (L GB);
+    {hint} (or --memory-limit if you know better)": `what` names the thing to be built and its
+    size, ending where "need" follows; `hint` says what to change."""
+    limit = available_memory() if limit_gb is None else limit_gb * 1e9
+    if bytes_needed > limit:
+        which = "the memory limit you gave" if limit_gb is not None else "the memory available now"
+        raise TextileError(f"{what} need about {bytes_needed / 1e9:.1f} GB, more than {which} ({limit / 1e9:.1f} GB); "
+                           f"{hint} (or --memory-limit if you know better)")
+
+
+def release_freed_memory() -> None:
+    """Return freed heap pages to the operating system (glibc), where available."""
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

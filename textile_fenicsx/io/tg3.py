@@ -1,0 +1,503 @@
+"""TexGen .tg3 (XML) in and out.
+
+Reading takes any textile TexGen saved with its yarns (2D weaves, orthogonal, layer-to-layer, plain
+CTextile...) as a generic yarn list: master nodes, repeats, interpolation, yarn sections, sections
+and the CDomainPlanes box. Elements without geometry (fibre distributions, section meshes, a weave's
+own pattern description) are skipped; anything else unknown is an error naming it.
+
+Writing produces a plain CTextile that TexGen 3.14 reads back without rebuilding it (the facts in
+reference/README.md): mandatory yarn attributes, CDomainPlanes, and each yarn's own
+interpolation and sections (per-node polygons for corrected yarns).
+"""
+
+import logging
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from textile_fenicsx.common.errors import FormatError, TextileError
+from textile_fenicsx.common.files import atomic_path
+from textile_fenicsx.common.limits import (
+    MAX_NODES,
+    MAX_NODES_PER_YARN,
+    MAX_POLYGON_POINTS,
+    MAX_SIZE,
+    MAX_YARNS,
+    MIN_LENGTH,
+    check_file_size,
+    check_many,
+)
+from textile_fenicsx.model import fibres as fibre_data
+from textile_fenicsx.model.sections import (
+    MAX_HYBRID_DEPTH,
+    Ellipse,
+    Flat,
+    Hybrid,
+    Lenticular,
+    Polygon,
+    PowerEllipse,
+    Section,
+)
+from textile_fenicsx.model.textile import Cell, Textile
+from textile_fenicsx.model.yarn import ConstantSection, NodeSections, PositionSections, Yarn
+
+log = logging.getLogger(__name__)
+
+INTERPOLATION_IN = {"CInterpolationBezier": "bezier", "CInterpolationCubic": "cubic",
+                    "CInterpolationLinear": "linear"}
+INTERPOLATION_OUT = {v: k for k, v in INTERPOLATION_IN.items()}
+# Children that carry no geometry of the yarn or describe how a weave textile built its yarns.
+IGNORED_YARN_CHILDREN = {"FibreDistribution", "SectionMesh", "SlaveNode", "Mesh"}
+# TexGen's stack of plies (AddLayer, NestLayers): its yarns are read ply by ply (Textile.plies)
+LAYERED = "CTextileLayered"
+# TexGen's 3D weave classes, whose FabricThickness is the thickness the preform is woven to (the
+# default mould of the solve); a 2D weave's is its yarns' nominal stack, which the solve may exceed
+WOVEN_TO_THICKNESS = {"CTextile3DWeave", "CTextileOrthogonal", "CTextileLayerToLayer", "CTextileAngleInterlock"}
+IGNORED_TEXTILE_CHILDREN = {"PatternCell", "XYarns", "YYarns", "XYarnData", "YYarnData", "Properties",
+                            "Layer", "Layers", "BinderYarns", "WarpYarns", "WeftYarns"}
+
+
+def _floats(text, where: str, n: int | None = None) -> np.ndarray:
+    if text is None:
+        raise FormatError(f"{where}: missing value")
+    try:
+        v = np.array([float(x) for x in str(text).replace(",", " ").split()])
+    except ValueError:
+        raise FormatError(f"{where}: not a list of numbers: {text!r}") from None
+    if n is not None and len(v) != n:
+        raise FormatError(f"{where}: expected {n} numbers, got {text!r}")
+    if not np.all(np.isfinite(v)):
+        raise FormatError(f"{where}: non-finite number in {text!r}")
+    return v
+
+
+def _attr(el, name: str, where: str, default=None, kind=float):
+    text = el.get(name)
+    if text is None:
+        if default is None:
+            raise FormatError(f"{where}: missing attribute {name}")
+        return default
+    try:
+        return kind(float(text)) if kind in (int, bool) else kind(text)
+    except (ValueError, OverflowError):
+        raise FormatError(f"{where}: attribute {name}={text!r} is not a {kind.__name__}") from None
+
+
+def _section(el, where: str, depth: int = 0) -> Section:
+    """A <Section> element as a Section. depth > 0: a piece of a hybrid section (that deep), which
+    may be flat (an ellipse or power ellipse of height 0: TexGen's refine writes a weft's flat half
+    so)."""
+    kind = el.get("type")
+    where = f"{where} {kind}"
+    allowed = IGNORED_YARN_CHILDREN | {"PolygonPoint"}
+    if kind == "CSectionHybrid":
+        allowed = allowed | {"Division", "Section"}
+        if depth >= MAX_HYBRID_DEPTH:
+            raise FormatError(f"{where}: hybrid sections nested more than {MAX_HYBRID_DEPTH} deep")
+    for child in el:
+        if child.tag not in allowed:
+            raise FormatError(f"{where}: unsupported element <{child.tag}>")
+    try:
+        if kind in ("CSectionEllipse", "CSectionPowerEllipse") and depth and _attr(el, "Height", where) == 0:
+            if _attr(el, "XOffset", where, 0.0) != 0:
+                raise FormatError(f"{where}: a flat piece (Height 0) with an XOffset is not supported")
+            return Flat(_attr(el, "Width", where))
+        if kind == "CSectionEllipse":
+            return Ellipse(_attr(el, "Width", where), _attr(el, "Height", where))
+        if kind == "CSectionPowerEllipse":
+            return PowerEllipse(_attr(el, "Width", where), _attr(el, "Height", where),
+                                _attr(el, "Power", where), _attr(el, "XOffset", where, 0.0))
+        if kind == "CSectionLenticular":
+            if el.get("Radius") is not None and el.get("Offset") is not None:
+                r, o = _attr(el, "Radius", where), _attr(el, "Offset", where)
+                return Lenticular(2 * np.sqrt(r * r - o * o), 2 * (r - o))
+            return Lenticular(_attr(el, "Width", where), _attr(el, "Height", where),
+                              _attr(el, "Distortion", where, 0.0))
+        if kind == "CSectionPolygon":
+            check_many(f"{where}: PolygonPoint elements", len(el.findall("PolygonPoint")), MAX_POLYGON_POINTS,
+                       FormatError)
+            pts = [_floats(p.get("value"), f"{where} PolygonPoint", 2) for p in el.findall("PolygonPoint")]
+            return Polygon(tuple(map(tuple, pts)))
+        if kind == "CSectionHybrid":
+            return _hybrid(el, where, depth)
+    except FormatError:
+        raise
+    except TextileError as e:
+        raise FormatError(f"{where}: {e}") from None
+    raise FormatError(f"{where}: unsupported section type {kind!r}")
+
+
+def _hybrid(el, where: str, depth: int) -> Hybrid:
+    """TexGen's CSectionHybrid: <Division Value=...> elements and one <Section> per division. TexGen
+    sorts the divisions as it reads them and gives the sections to them in the file's order (its
+    CSectionHybrid(TiXmlElement&)): the first section to the smallest division, and so on."""
+    divisions = el.findall("Division")
+    pieces = el.findall("Section")
+    check_many(f"{where}: Division elements", len(divisions), MAX_POLYGON_POINTS, FormatError)
+    if len(pieces) != len(divisions) or not divisions:
+        raise FormatError(f"{where}: needs one <Section> per <Division>, at least one; has {len(divisions)} "
+                          f"divisions and {len(pieces)} sections")
+    values = sorted(_attr(d, "Value", f"{where} Division") for d in divisions)
+    return Hybrid(tuple(values), tuple(_section(p, f"{where} piece {k}", depth + 1) for k, p in enumerate(pieces)))
+
+
+def _yarn_section(el, n_nodes: int, where: str):
+    kind = el.get("type")
+    where = f"{where} YarnSection {kind}"
+    ramped = bool(_attr(el, "Ramped", where, 0, int))
+    polar = bool(_attr(el, "Polar", where, 0, int))
+    if kind == "CYarnSectionConstant":
+        sec = el.find("Section")
+        if sec is None:
+            raise FormatError(f"{where}: no <Section>")
+        return ConstantSection(_section(sec, where))
+    if kind == "CYarnSectionInterpNode":
+        found, mid = {}, []
+        for ns in el.findall("NodeSection"):
+            k = _attr(ns, "nodeindex", where, kind=int)
+            sec = ns.find("Section")
+            if sec is None:
+                raise FormatError(f"{where}: NodeSection {k} has no <Section>")
+            found[k] = _section(sec, f"{where} node {k}")
+            for ms in ns.findall("MidNodeSection"):  # TexGen's refine: sections inside segment k
+                t = _attr(ms, "t", where)
+                inner = ms.find("Section")
+                if inner is None or not 0 < t < 1 or k >= n_nodes - 1:
+                    raise FormatError(f"{where}: MidNodeSection of node {k} needs a <Section>, 0 < t < 1 and a "
+                                      "following node")
+                mid.append((k, float(t), _section(inner, f"{where} node {k} mid")))
+        if sorted(found) != list(range(n_nodes)):
+            raise FormatError(f"{where}: needs one NodeSection per master node 0..{n_nodes - 1}, has {sorted(found)}")
+        if len({(k, t) for k, t, _ in mid}) != len(mid):
+            raise FormatError(f"{where}: two MidNodeSections at the same place of a segment")
+        return NodeSections(tuple(found[k] for k in range(n_nodes)), ramped, polar, tuple(mid))
+    if kind == "CYarnSectionInterpPosition":
+        items = []
+        for ps in el.findall("PositionSection"):
+            sec = ps.find("Section")
+            if sec is None:
+                raise FormatError(f"{where}: PositionSection has no <Section>")
+            items.append((_attr(ps, "t", where), _section(sec, where)))
+        if not items:
+            raise FormatError(f"{where}: no PositionSection")
+        items.sort(key=lambda x: x[0])
+        return PositionSections(tuple(t for t, _ in items), tuple(s for _, s in items), ramped, polar)
+    raise FormatError(f"{where}: unsupported yarn section type {kind!r}")
+
+
+def _yarn(el, textile_where: str) -> Yarn:
+    where = f"{textile_where} Yarn {el.get('index', '?')}"
+    known = {"Interpolation", "YarnSection", "Repeat", "MasterNode"} | IGNORED_YARN_CHILDREN
+    for child in el:
+        if child.tag not in known:
+            raise FormatError(f"{where}: unsupported element <{child.tag}>")
+    nodes = el.findall("MasterNode")
+    check_many(f"{where}: MasterNode elements", len(nodes), MAX_NODES_PER_YARN, FormatError)
+    nodes = sorted(nodes, key=lambda n: _attr(n, "index", where, kind=int))
+    if len(nodes) < 2:
+        raise FormatError(f"{where}: needs at least 2 MasterNode elements, has {len(nodes)}")
+    pos = np.array([_floats(n.get("Position"), f"{where} MasterNode {i} Position", 3) for i, n in enumerate(nodes)])
+
+    def per_node(name, default):  # None when no node has the attribute (TexGen's default applies)
+        if all(n.get(name) is None for n in nodes):
+            return None
+        return np.array([_floats(n.get(name), f"{where} MasterNode {i} {name}", len(default))
+                         if n.get(name) is not None else default for i, n in enumerate(nodes)])
+
+    interp = el.find("Interpolation")
+    if interp is None:
+        raise FormatError(f"{where}: no <Interpolation>")
+    itype = interp.get("type")
+    if itype not in INTERPOLATION_IN:
+        raise FormatError(f"{where}: unsupported interpolation type {itype!r}")
+    ysec = el.find("YarnSection")
+    if ysec is None:
+        raise FormatError(f"{where}: no <YarnSection>")
+    angles = per_node("Angle", np.zeros(1))
+    fibres = fibre_data.from_tg3(el, where)
+    try:
+        return Yarn(
+            nodes=pos,
+            section=_yarn_section(ysec, len(pos), where),
+            interpolation=INTERPOLATION_IN[itype],
+            periodic=bool(_attr(interp, "Periodic", where, 1, int)),
+            repeats=np.array([_floats(r.get("value"), f"{where} Repeat", 3)
+                              for r in el.findall("Repeat")]).reshape(-1, 3),
+            tangents=per_node("Tangent", np.zeros(3)),
+            ups=per_node("Up", np.zeros(3)),
+            angles=None if angles is None else angles[:, 0],
+            force_in_plane_tangent=bool(_attr(interp, "ForceInPlaneTangent", where, 0, int)),
+            force_node_tangent_in_plane=bool(_attr(interp, "ForceMasterNodeTangent", where, 0, int)),
+            fibres=fibres,
+            name=f"yarn {el.get('index', '?')}",
+        )
+    except FormatError:
+        raise
+    except TextileError as e:
+        raise FormatError(f"{where}: {e}") from None
+
+
+def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
+    dom = textile_el.find("Domain")
+    if dom is None:
+        reps = yarns[0].repeats
+        if len(reps) != 2 or abs(reps[0, 1]) + abs(reps[1, 0]) > 0:
+            raise FormatError(f"{where}: no <Domain> and no axis-aligned repeats to define the unit cell")
+        try:
+            return Cell(float(reps[0, 0]), float(reps[1, 1]))
+        except TextileError as e:
+            raise FormatError(f"{where}: repeats as the unit cell: {e}") from None
+    if dom.get("type") != "CDomainPlanes":
+        raise FormatError(f"{where}: unsupported domain type {dom.get('type')!r} (only CDomainPlanes)")
+    lo: list = [None] * 3  # plane offsets per axis, None until a plane bounds it
+    hi: list = [None] * 3
+    for plane in dom.findall("Plane"):
+        n = _floats(plane.get("Normal"), f"{where} Domain Plane Normal", 3)
+        d = _attr(plane, "d", f"{where} Domain Plane")
+        axis = int(np.argmax(np.abs(n)))
+        if np.count_nonzero(np.abs(n) > 1e-12) != 1:
+            raise FormatError(f"{where}: Domain plane with normal {n.tolist()} is not axis-aligned")
+        if n[axis] > 0:
+            lo[axis] = d / n[axis]
+        else:
+            hi[axis] = d / n[axis]
+    if any(v is None for v in lo[:2] + hi[:2]):
+        raise FormatError(f"{where}: Domain planes do not bound x and y on both sides")
+    z_range = (lo[2], hi[2]) if lo[2] is not None and hi[2] is not None else None
+    # TexGen repeats yarns by their repeat vectors and clips them by the domain: with no repeats at
+    # all, the domain is a coupon with free edges
+    periodic = any(len(y.repeats) for y in yarns)
+    try:
+        return Cell(hi[0] - lo[0], hi[1] - lo[1], lo[0], lo[1], z_range, periodic)
+    except TextileError as e:
+        raise FormatError(f"{where}: Domain: {e}") from None
+
+
+def read_tg3(path, textile: str | None = None) -> Textile:
+    """Read a TexGen .tg3 file as a Textile (the named textile, or the only/first one)."""
+    path = Path(path)
+    check_file_size(path)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise FormatError(f"{path}: not valid XML ({e})") from None
+    except OSError as e:
+        raise FormatError(f"{path}: cannot read ({e.strerror})") from None
+    if root.tag != "TexGenModel":
+        raise FormatError(f"{path}: root element is <{root.tag}>, expected <TexGenModel>")
+    textiles = root.findall("Textile")
+    if not textiles:
+        raise FormatError(f"{path}: no <Textile>")
+    if textile is not None:
+        textiles = [t for t in textiles if t.get("name") == textile]
+        if not textiles:
+            raise FormatError(f"{path}: no textile named {textile!r}")
+    el = textiles[0]
+    where = f"{path.name}: Textile {el.get('name', '?')!r} ({el.get('type', '?')})"
+    layered = el.get("type") == LAYERED
+    for child in el:
+        if child.tag not in {"Domain", "Yarn"} | IGNORED_TEXTILE_CHILDREN | ({"Offset"} if layered else set()):
+            raise FormatError(f"{where}: unsupported element <{child.tag}>")
+    yarn_els = el.findall("Yarn")
+    check_many(f"{where}: Yarn elements", len(yarn_els), MAX_YARNS, FormatError)
+    check_many(f"{where}: MasterNode elements of all yarns", len(el.findall("Yarn/MasterNode")), MAX_NODES, FormatError)
+    if not yarn_els:
+        raise FormatError(f"{where}: the file holds no yarns (saved with OUTPUT_MINIMAL?); "
+                          "save it from TexGen with OUTPUT_STANDARD or OUTPUT_FULL")
+    def index(y):
+        try:
+            return int(y.get("index", 0) or 0)
+        except ValueError:
+            raise FormatError(f"{where}: <Yarn index={y.get('index')!r}> is not a whole number") from None
+
+    yarns = [_yarn(y, where) for y in sorted(yarn_els, key=index)]
+    plies, sizes = 1, None
+    if layered:  # TexGen's stack of plies: the yarns in place already, listed ply by ply
+        indices = [index(y) for y in yarn_els]
+        if len(set(indices)) != len(indices):
+            raise FormatError(f"{where}: two <Yarn> elements have the same index "
+                              f"{sorted({i for i in indices if indices.count(i) > 1})}")
+        layers = _layers(el, indices, where)
+        at = {i: k for k, i in enumerate(sorted(indices))}  # index -> place among the yarns read
+        yarns, plies = [yarns[at[i]] for layer in layers for i in layer], len(layers)
+        sizes = tuple(len(layer) for layer in layers)
+    # the textile's fibre data: for yarns without their own fibre area (TexGen's CYarn takes the
+    # textile's fibre area where its own data gives none, e.g. a fibre count without a diameter)
+    default = fibre_data.from_tg3(el, where)
+    for y in yarns:
+        if y.fibres is None or (default is not None and y.fibres.fibre_area() is None):
+            y.fibres = default
+    cell = _domain(el, yarns, where)
+    try:
+        woven_to = _woven_to(el, where)
+        model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to, plies=plies,
+                        ply_sizes=sizes)
+        model.check_size()
+        return model
+    except FormatError:
+        raise
+    except TextileError as e:  # the yarns do not make a periodic textile in this domain, or too large
+        raise FormatError(f"{where}: {e}") from None
+
+
+def _layers(el, indices: list[int], where: str) -> list[list[int]]:
+    """A CTextileLayered's plies: each <Layer>'s yarn indices (every yarn in exactly one). Its
+    <Offset> elements (one per layer) record how far AddLayer moved each ply in the plane; the
+    yarns are saved moved, so they are checked, not applied."""
+    layers = []
+    for k, layer in enumerate(el.findall("Layer"), start=1):
+        members = []
+        for y in layer:
+            if y.tag != "Yarn":
+                raise FormatError(f"{where}: <Layer> {k}: unsupported element <{y.tag}>")
+            text = y.get("yarnindex")
+            if text is None or not text.strip().isdigit():
+                raise FormatError(f"{where}: <Layer> {k}: yarnindex={text!r} is not a yarn index (a whole number)")
+            members.append(int(text))
+        if not members:
+            raise FormatError(f"{where}: <Layer> {k} holds no yarns")
+        layers.append(members)
+    listed = sorted(i for layer in layers for i in layer)
+    if listed != sorted(indices):
+        missing, extra = sorted(set(indices) - set(listed)), sorted(set(listed) - set(indices))
+        repeated = sorted({i for i in listed if listed.count(i) > 1})
+        raise FormatError(f"{where}: the <Layer> elements must list every yarn once (missing {missing}, not a yarn "
+                          f"{extra}, listed more than once {repeated})")
+    offsets = el.findall("Offset")
+    if offsets and len(offsets) != len(layers):
+        raise FormatError(f"{where}: {len(offsets)} <Offset> elements for {len(layers)} layers")
+    for k, o in enumerate(offsets, start=1):
+        _floats(o.get("value"), f"{where}: <Offset> {k}", 2)
+    return layers
+
+
+def _woven_to(el, where: str) -> float | None:
+    """A 3D weave's FabricThickness [mm], None for other textiles, or where it is no thickness
+    (TexGen leaves it unset, e.g. 2e-314, in an orthogonal weave built without SetThickness)."""
+    if el.get("type") not in WOVEN_TO_THICKNESS or el.get("FabricThickness") is None:
+        return None
+    value = _attr(el, "FabricThickness", where)
+    if not MIN_LENGTH <= value <= MAX_SIZE:
+        log.warning("%s: FabricThickness=%s is not a thickness; the fabric has no default mould", where,
+                    el.get("FabricThickness"))
+        return None
+    return value
+
+
+# --- writing ----------------------------------------------------------------------------------
+
+def _num(v) -> str:
+    """Numbers as TexGen writes them, each in the shortest form that reads back to the same double
+    (a model written and read again is identical)."""
+    return ", ".join(map(repr, np.atleast_1d(np.asarray(v, float)).tolist()))
+
+
+def _section_element(parent, sec: Section, n_points: int):
+    el = ET.SubElement(parent, "Section")
+    if isinstance(sec, Ellipse):
+        el.attrib.update(type="CSectionEllipse", Width=_num(sec.width), Height=_num(sec.height))
+    elif isinstance(sec, PowerEllipse):
+        el.attrib.update(type="CSectionPowerEllipse", Width=_num(sec.width), Height=_num(sec.height),
+                         Power=_num(sec.power), XOffset=_num(sec.x_offset))
+    elif isinstance(sec, Lenticular):
+        el.attrib.update(type="CSectionLenticular", Width=_num(sec.width), Height=_num(sec.height),
+                         Distortion=_num(sec.distortion))
+    elif isinstance(sec, Polygon):
+        el.attrib.update(type="CSectionPolygon", RetainPoints="0")
+        for p in sec.vertices:
+            ET.SubElement(el, "PolygonPoint", value=_num(p))
+    elif isinstance(sec, Flat):  # TexGen's flat half of a hybrid: an ellipse of height 0
+        el.attrib.update(type="CSectionEllipse", Width=_num(sec.width), Height=_num(0.0))
+    elif isinstance(sec, Hybrid):
+        el.attrib.update(type="CSectionHybrid")
+        for d in sec.divisions:
+            ET.SubElement(el, "Division", Value=_num(d))
+        for p in sec.pieces:
+            _section_element(el, p, n_points)
+    else:
+        raise TextileError(f"cannot write section of type {type(sec).__name__}")
+    return el
+
+
+def _section_points_for(yarn: Yarn) -> int:
+    # TexGen resamples polygons to NumSectionPoints; ~4x the vertex count keeps corners (README).
+    polys = [s for s in yarn.section.sections() if isinstance(s, Polygon)]
+    return max([40] + [4 * len(p.vertices) for p in polys])
+
+
+def tg3_tree(textile: Textile) -> ET.ElementTree:
+    """The XML tree of a plain CTextile holding the textile's yarns as they are; a stack of plies
+    as TexGen's CTextileLayered (its yarns in place, each ply's listed in a <Layer>)."""
+    root = ET.Element("TexGenModel", version="3.14.0")
+    tex = ET.SubElement(root, "Textile", name=textile.name, type="CTextile" if textile.plies == 1 else LAYERED,
+                        GeometryScale="mm")
+    c = textile.cell
+    z0, z1 = c.z_range if c.z_range is not None else _z_extent(textile)
+    dom = ET.SubElement(tex, "Domain", type="CDomainPlanes")
+    for normal, d in (((1, 0, 0), c.x0), ((-1, 0, 0), -(c.x0 + c.lx)), ((0, 1, 0), c.y0),
+                      ((0, -1, 0), -(c.y0 + c.ly)), ((0, 0, 1), z0), ((0, 0, -1), -z1)):
+        ET.SubElement(dom, "Plane", Normal=_num(normal), d=_num(d))
+    for i, y in enumerate(textile.yarns):
+        n_sec = _section_points_for(y)
+        yel = ET.SubElement(tex, "Yarn", index=str(i), NumSlaveNodes=str(max(40, 4 * len(y.nodes))),
+                            NumSectionPoints=str(n_sec), NeedsBuilding="7")
+        if y.fibres is not None:
+            yel.attrib.update(fibre_data.tg3_attributes(y.fibres))
+        ET.SubElement(yel, "Interpolation", type=INTERPOLATION_OUT[y.interpolation],
+                      Periodic=str(int(y.periodic)), ForceInPlaneTangent=str(int(y.force_in_plane_tangent)),
+                      ForceMasterNodeTangent=str(int(y.force_node_tangent_in_plane)))
+        sec = y.section
+        if isinstance(sec, ConstantSection):
+            ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionConstant", ConstMesh="1")
+            _section_element(ys, sec.section, n_sec)
+        elif isinstance(sec, NodeSections):
+            ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpNode",
+                               Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))
+            for k, s in enumerate(sec.at_nodes):
+                node = ET.SubElement(ys, "NodeSection", nodeindex=str(k))
+                _section_element(node, s, n_sec)
+                for segment, t, x in sec.mid:
+                    if segment == k:
+                        _section_element(ET.SubElement(node, "MidNodeSection", nodeindex=str(k), t=_num(t)), x,
+                                         n_sec)
+        else:
+            ys = ET.SubElement(yel, "YarnSection", type="CYarnSectionInterpPosition",
+                               Ramped=str(int(sec.ramped)), Polar=str(int(sec.polar)))
+            for t, s in zip(sec.positions, sec.at_positions):
+                _section_element(ET.SubElement(ys, "PositionSection", t=_num(t)), s, n_sec)
+        for r in y.repeats:
+            ET.SubElement(yel, "Repeat", value=_num(r))
+        for k, p in enumerate(y.nodes):
+            node = ET.SubElement(yel, "MasterNode", index=str(k), Position=_num(p))
+            if y.tangents is not None:
+                node.set("Tangent", _num(y.tangents[k]))
+            if y.ups is not None:
+                node.set("Up", _num(y.ups[k]))
+            if y.angles is not None:
+                node.set("Angle", _num(y.angles[k]))
+    if textile.plies > 1:
+        from textile_fenicsx.model.plies import ply_of
+
+        tex.set("Resolution", "40")
+        ply = np.array(ply_of(textile))
+        for k in range(textile.plies):
+            layer = ET.SubElement(tex, "Layer")
+            for i in np.flatnonzero(ply == k):
+                ET.SubElement(layer, "Yarn", yarnindex=str(i))
+    ET.indent(root, space="    ")
+    return ET.ElementTree(root)
+
+
+def _z_extent(textile: Textile) -> tuple[float, float]:
+    z = np.concatenate([textile.triangles(i)[..., 2].ravel() for i in range(len(textile.yarns))])
+    pad = 0.05 * (z.max() - z.min())
+    return float(z.min() - pad), float(z.max() + pad)
+
+
+def write_tg3(textile: Textile, path) -> Path:
+    """Write the textile as a generic TexGen .tg3, atomically."""
+    tree = tg3_tree(textile)
+    with atomic_path(path) as tmp:
+        tree.write(tmp, encoding="utf-8", xml_declaration=True)
+    return Path(path)
