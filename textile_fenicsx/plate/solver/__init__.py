@@ -2,12 +2,18 @@
 
 One module per idea:
 - parameters: PlateParameters, Compaction, Mould, SolverOptions, Solution;
-- periodic: the unknowns (Periodicity, the one owner of the periodic numbering) and seam facets;
+- numbering: the unknowns (Periodicity, the one owner of the periodic numbering) and seam facets;
 - pattern: the combined matrix's fixed CSR pattern (FixedPattern);
-- contact: contact pairs as data, their forms derived from the contact energy;
+- pairs: contact pairs as data, their forms derived from the contact energy; the exact method's
+  constrained nodes (the pairs', a mould's platens');
 - flattening: yarns whose thickness is an unknown, held by their compaction law;
 - basis: their Newton systems solved in mid-height and thickness change (w, dt);
-- problem: ContactProblem, the assembled energy (owns K, the vectors and the direct solver);
+- plates: the plates' matrix and load over the unknowns, and the common vertical translation;
+- problem: ContactProblem, the assembled energy: its gradient, value and Newton matrix at the
+  unknowns (owns K_fixed and the vectors);
+- system: NewtonSystem, the Newton matrix factorised and its solves checked (owns K and the direct
+  solver);
+- readout: a solution's displacements, gap and contact fields, penetration and platen pressure;
 - newton: the iterations (exact contact, the default; the paper's penalty);
 - linear: PETSc options as dicts, the direct solver and its checks.
 """

@@ -12,7 +12,7 @@ their own: a gap reads the upper yarn's bottom and the lower yarn's top, a plate
 or top, and the maximum packing adds a constraint between a node's two (PACKING).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import ufl
@@ -25,7 +25,7 @@ from textile_fenicsx.plate.solver.numbering import BOTTOM, TOP, Periodicity
 from textile_fenicsx.plate.solver.parameters import Mould, PlateParameters
 
 __all__ = ["ContactPair", "MouldRows", "Nodes", "PairForms", "build_pairs", "contact_nodes", "gathered_unknowns",
-           "initial_gap", "jacobian_values", "mould_rows", "residual_values"]
+           "initial_gap", "jacobian_values", "mould_rows", "renewed_nodes", "residual_values"]
 
 # a node's "other yarn" where it is a platen: no pair, no unknown
 NONE = -1
@@ -273,6 +273,22 @@ def contact_nodes(comm, pairs: list[ContactPair], need: np.ndarray, images: list
     pair, at, at_u, at_l, rows_u, rows_l, g0 = (np.concatenate(a) for a in zip(*(parts or [empty])))
     return Nodes(pair.astype(np.int64), at.astype(np.int64), at_u.astype(np.int64), at_l.astype(np.int64),
                  rows_u.astype(np.int64), rows_l.astype(np.int64), g0.astype(float))
+
+
+def renewed_nodes(ms: MidSurfaces, numbering: Periodicity, nodes: Nodes, pairs: list[ContactPair],
+                  mould: Mould | None, min_gap: float = 0.0) -> Nodes:
+    """The same constraints after the pairs' initial gaps and margins were read again (`pairs`,
+    the same pairs with new g0 and margin) and, with a mould, its platens' gaps (they may have
+    moved); the maximum packing's are kept [mm]."""
+    g0 = nodes.g0.copy()
+    paired = nodes.pair >= 0
+    gaps = np.concatenate([p.g0 - p.margin for p in pairs] + [np.zeros(0)])
+    first = np.concatenate([[0], np.cumsum([len(p.g0) for p in pairs])])
+    g0[paired] = gaps[first[nodes.pair[paired]] + nodes.at[paired]]
+    if mould is not None:
+        images = numbering.image_dofs(ms)
+        g0[nodes.pair == NONE] = mould_rows(ms, numbering, images, mould, min_gap).g0
+    return replace(nodes, g0=g0)
 
 
 def _claim(comm, key: np.ndarray, owner: np.ndarray) -> np.ndarray:
