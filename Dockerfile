@@ -1,5 +1,5 @@
 # textile_fenicsx on Debian 13 (trixie): the packages of debian-packages.txt (the list bin/fenicsx-env
-# installs too) and this package. README "Docker" has the commands; `make docker-test` runs them:
+# installs too) and this package. docs/environment.md "Docker" has the commands; `make docker-test` runs them:
 #   docker build --network=host -t textile-fenicsx .
 #   mkdir -p output
 #   docker run --rm --network=none --user "$(id -u):$(id -g)" -v "$PWD/output:/work/output" textile-fenicsx

@@ -5,15 +5,22 @@ PYTEST   := python3 -m pytest -p no:cacheprovider
 # the serial pass on two pytest-xdist workers (one per core; 0: in one process)
 WORKERS  ?= 2
 MPIRUN   := mpirun -n 2
+# the fast tier (make test) leaves out what the slow tier (make test-all) adds: tests marked slow or
+# convergence (whole 3D weaves, demos, large tet fixtures), chosen by the durations both print
+FAST     := not sweep and not slow and not convergence
+SLOW     := (slow or convergence) and not sweep
+DURATIONS := --durations=25
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi lint docker-test bench bench-outer bench-volume sweep sweep-volume sweep-compaction clean
+.PHONY: help env demo demos test test-serial test-mpi test-all test-slow test-slow-serial test-slow-mpi lint docker-test bench bench-outer bench-volume sweep sweep-volume sweep-compaction clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
 	@echo "make demos        every demo, outputs in $(OUT)/<demo>/"
-	@echo "make test         serial test pass (on WORKERS=2 pytest-xdist workers), then the mpi-marked tests under"
-	@echo "                  $(MPIRUN)"
+	@echo "make test         the fast tier (under 12 min on 2 cores): serial pass (on WORKERS=2 pytest-xdist"
+	@echo "                  workers), then the mpi-marked tests under $(MPIRUN); slow and convergence tests left out"
+	@echo "make test-all     make test, then the slow tier: the slow and convergence tests, serial and under"
+	@echo "                  $(MPIRUN) (about 20 min more)"
 	@echo "make lint         ruff (rules in pyproject.toml) and mypy on the package; pinned tools from PyPI,"
 	@echo "                  installed once by bin/lint on the host (under a minute), then a few seconds"
 	@echo "make bench        the pipeline stage by stage on the satin (seeds 1-0.125), the orthogonal weave and"
@@ -48,10 +55,20 @@ demos:
 test: test-serial test-mpi
 
 test-serial:
-	$(ENV) $(PYTEST) -n $(WORKERS) -m "not sweep" tests
+	$(ENV) $(PYTEST) -n $(WORKERS) -m "$(FAST)" $(DURATIONS) tests
 
 test-mpi:
-	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m mpi tests
+	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m "mpi and ($(FAST))" $(DURATIONS) tests
+
+test-all: test test-slow
+
+test-slow: test-slow-serial test-slow-mpi
+
+test-slow-serial:
+	$(ENV) $(PYTEST) -n $(WORKERS) -m "$(SLOW)" $(DURATIONS) tests
+
+test-slow-mpi:
+	$(ENV) $(MPIRUN) $(PYTEST) --color=no -m "mpi and ($(SLOW))" $(DURATIONS) tests
 
 lint:
 	bin/lint ruff

@@ -1,4 +1,4 @@
-"""The compaction's cost against a single solve (README, Compaction; part of `make bench`).
+"""The compaction's cost against a single solve (docs/compaction.md; part of `make bench`).
 
 TexGen's 4-harness satin (reference/models/satin4_fibres.tg3: E-glass fibre data, yarn Vf 0.685)
 solved as usual, then pressed to Vf 0.55 (K = 50 MPa, in 4 steps: the default curve, and in 1:

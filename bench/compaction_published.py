@@ -1,5 +1,5 @@
-"""The plain weave's compaction curve beside the one published measure we could read (README,
-Compaction: "Against measurements").
+"""The plain weave's compaction curve beside the one published measure we could read
+(docs/compaction.md: "Against measurements").
 
 Published: Saunders, Lekakou & Bader, "Compression and microstructure of fibre plain woven cloths
 in the processing of polymer composites", Composites Part A 29 (1998) 443-454. Its abstract: the

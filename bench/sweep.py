@@ -12,7 +12,7 @@ slow); `make sweep` prints the table:
     python3 bench/sweep.py [--seed 0.5] [--only NAME ...] [--out output/sweep.json]
 
 With --compaction K --vf V (`make sweep-compaction`: K 50 MPa, Vf 0.5) every 2D fabric is solved
-and then pressed to Vf V (README, Compaction); the 3D weaves are left out (their binder legs are
+and then pressed to Vf V (docs/compaction.md); the 3D weaves are left out (their binder legs are
 not plates: compaction refuses them). --spreading S lets the pressed yarns spread (spreading.py).
 """
 

@@ -20,7 +20,7 @@ gives each engineering constant's change from the size before, and voxel against
 That last line compares two models: the voxel mesh is of the default corrected satin (its own
 thickness), the tet mesh of the one solved with the tet's gap (thicker, in a box padded by half the
 gap). To compare the discretisations alone, mesh the tet's model as voxels in the tet's box
-(`volume-mesh ... --kind voxel --z-range` with mesh_report.json's box_mm): README, "Refinement,
+(`volume-mesh ... --kind voxel --z-range` with mesh_report.json's box_mm): docs/volume.md, "Refinement,
 and voxel against tet".
 """
 

@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import sweep  # noqa: E402
 
 from textile_fenicsx.io.config import load_model as read_model  # noqa: E402
-from textile_fenicsx.volume.tetra import TetOptions, default_gap  # noqa: E402
+from textile_fenicsx.volume.tet.options import TetOptions, default_gap  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 # s: a tet mesh not made by then counts as failed (3D weaves take 6-14 min; retracing their sections, 2-3 x that)

@@ -62,7 +62,7 @@ if "voxel" in kinds:
     cells["corrected, voxel"] = (corrected, "voxel")
 if "tet" in kinds:
     from textile_fenicsx.plate.solver import SolverOptions
-    from textile_fenicsx.volume.tetra import TetOptions, default_gap
+    from textile_fenicsx.volume.tet.options import TetOptions, default_gap
 
     gap = default_gap(idealised, TetOptions())
     gapped = tfx.solve(idealised, seed=seed, comm=comm, solver=SolverOptions(min_gap=gap)).corrected

@@ -300,7 +300,7 @@ def _jammed_plain_pressed(reference_dir, **settings):
 def test_a_factor_that_lost_the_plates_names_the_coarse_mesh(reference_dir):
     # TexGen's jammed plain weave pressed at seed 0.5 without meshing again: where the yarns
     # flatten the weights at the closed nodes reach 1e12 of the plates' stiffness and the factor
-    # no longer resolves them (solver/problem.py, RESOLVED_WEIGHTS); its factorisation fails (MUMPS
+    # no longer resolves them (solver/system.py, RESOLVED_WEIGHTS); its factorisation fails (MUMPS
     # INFOG(1) = -10) at the jammed corner. The error says so, on every rank, and what to try
     from textile_fenicsx.common.errors import UnresolvedError
 
@@ -309,10 +309,11 @@ def test_a_factor_that_lost_the_plates_names_the_coarse_mesh(reference_dir):
 
 
 @pytest.mark.serial
+@pytest.mark.slow  # 31 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_the_jammed_plain_weave_pressed_to_vf_half_passes_where_the_weights_outgrow_the_factor(reference_dir):
     # TexGen's jammed plain weave (width/spacing 0.98) pressed to Vf 0.5 by the default command.
     # Where the yarns flatten, the weights at the closed nodes reach 1e12 of the plates' stiffness
-    # and the factor no longer resolves the plates (solver/problem.py, RESOLVED_WEIGHTS). At seed
+    # and the factor no longer resolves the plates (solver/system.py, RESOLVED_WEIGHTS). At seed
     # 0.5 the factorisation then failed as singular (MUMPS INFOG(1) = -10), and at 0.35 the
     # compaction stopped as "not convex" (3 negative pivots at an eigenvalue nearest zero of +4e-3
     # against a largest stiffness of 4e17): both ended the run. Now the first is meshed again
@@ -335,6 +336,7 @@ def test_the_jammed_plain_weave_pressed_to_vf_half_passes_where_the_weights_outg
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 19 s serially, 35 s under mpirun -n 2 (--durations, 2026-12-07): the slow tier
 def test_the_satin_pressed_to_six_tenths_of_its_thickness_is_the_same_on_two_ranks():
     # the issue's case: the 4-harness satin pressed to 0.6 of its relaxed thickness (0.868 mm at
     # seed 0.5); the check passes; serial and 2 ranks agree to 1e-8 mm in w and dt
@@ -423,6 +425,7 @@ def test_solve_passes_its_yarn_fibre_fraction_to_the_compaction(tmp_path):
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 16 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_two_plies_nest_when_moved_by_half_a_spacing_and_not_in_register():
     from textile_fenicsx.model.plies import stack
 
@@ -475,6 +478,7 @@ def test_texgens_own_stack_of_plies_nests_through_the_contact_solve(reference_di
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 18 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_a_nested_stack_is_pressed_as_one_fabric():
     from textile_fenicsx.model.plies import stack
 

@@ -8,7 +8,8 @@ import pytest
 
 from textile_fenicsx.common.errors import FormatError
 from textile_fenicsx.io.config import load_model, save_model, textile_from_dict
-from textile_fenicsx.io.tg3 import read_tg3, write_tg3
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.io.tg3_write import write_tg3
 from textile_fenicsx.model import fibres
 from textile_fenicsx.model.metrics import yarn_fibre_fractions
 

@@ -1,6 +1,6 @@
 """Issue 8: every bad input and failure mode gets a clear answer, nothing half-written is left, and
 MPI never hangs. Each case feeds the bad thing and asserts the message and the clean state; the
-README table "When things go wrong" lists them. (Reader fuzzing and the input-value table are in
+docs/errors.md lists them. (Reader fuzzing and the input-value table are in
 test_io.py.)"""
 
 import json
@@ -554,6 +554,7 @@ def test_memory_estimate_of_any_coupon_is_quick():
 
 
 @pytest.mark.serial
+@pytest.mark.slow  # 14 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_factors_on_disk_let_the_guard_take_a_larger_coupon(tmp_path):
     # --out-of-core: the guard assumes BYTES_PER_DOF_OUT_OF_CORE per dof. A memory limit between
     # the two needs of a 2 x 2 crowfoot satin coupon: refused with the factors in memory, solved

@@ -292,7 +292,7 @@ def test_bad_inputs_name_the_culprit(tmp_path_factory):
 
 @pytest.mark.serial
 def test_memory_estimate_by_degree():
-    """The guard's estimate bounds the peaks measured (README, refinement study, 2026-11-26): first-
+    """The guard's estimate bounds the peaks measured (docs/volume.md, refinement study, 2026-11-26): first-
     order voxels on 2 ranks peaked at 2.49 GB (1 166 445 dofs) and 6.62 GB (3 189 375 dofs) in the
     largest process, so at most twice that summed over the ranks; and it no longer takes them at
     the second order's price, which refused the 3.2 million dofs as 29 GB."""

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from textile_fenicsx.common.errors import FormatError, TextileError
 from textile_fenicsx.io.config import load_model, save_model
-from textile_fenicsx.io.tg3 import read_tg3, write_tg3
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.io.tg3_write import write_tg3
 from textile_fenicsx.model.metrics import measure
 from textile_fenicsx.model.sections import Ellipse, Polygon
 from textile_fenicsx.model.textile import Cell, Textile

@@ -156,6 +156,7 @@ def test_mesh_command_meshes_the_plates_the_solve_does(reference_dir, capsys, co
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 13 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_texgens_orthogonal_weave_meshes_at_a_finer_seed(reference_dir):
     # its binders' edges lie 0.0125 mm inside the cell's y sides; at seed 0.25 gmsh's boolean
     # tolerance is seed / 20 = 0.0125 mm, and it put some of those points onto the side and not
@@ -277,6 +278,7 @@ def test_a_point_a_round_off_below_a_side_has_its_periodic_neighbours():
 
 
 @pytest.mark.serial
+@pytest.mark.slow  # 30 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_the_plates_of_a_weave_whose_legs_stand_on_the_sides_mesh_periodic(reference_dir):
     # TexGen's refined orthogonal weave (2.4 mm) stands its binders' legs on the cell's side, and
     # their crowns end on it (legs._clear_of_sides). gmsh's boolean, with its tolerance, grew a

@@ -125,7 +125,7 @@ def test_inside_and_fibre_direction():
 
 @pytest.mark.serial
 def test_a_point_beyond_the_cell_takes_its_direction_from_the_copy_that_holds_it():
-    # A volume mesh's box may start off the cell's origin (tetra moves it off the yarns' edges), so
+    # A volume mesh's box may start off the cell's origin (the tet mesher moves it off the yarns' edges), so
     # elements lie in copies of a yarn whose centrelines never meet the cell. Periodicity: the
     # nearest centreline point of a translated point is the translated nearest point.
     t = build("crowfoot_satin", spacing=2.8, width=2.5, height=0.35, thickness=0.7)

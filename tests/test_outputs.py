@@ -196,7 +196,7 @@ def test_a_yarn_at_the_node_limit_is_corrected_into_a_model_that_reads_back(refe
     from textile_fenicsx.common import limits
     from textile_fenicsx.correction.correct import corrected_textile
     from textile_fenicsx.io.config import load_model, save_model
-    from textile_fenicsx.io.tg3 import write_tg3
+    from textile_fenicsx.io.tg3_write import write_tg3
     from textile_fenicsx.model.textile import Textile
     from textile_fenicsx.model.yarn import Yarn
 
@@ -398,6 +398,7 @@ def test_fields_open_in_meshio_and_pyvista(satin_run, mpi_tmp_path):
                           "TEXTILE_FENICSX_VOXEL": "0.4", "TEXTILE_FENICSX_DEGREE": "1"}),
     ("compaction_satin", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_TARGETS": "0.45 0.5"}),
 ])
+@pytest.mark.slow  # 170 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_demos_run_on_coarse_seeds(demo, env, tmp_path):
     run_env = dict(os.environ, TEXTILE_FENICSX_OUT=str(tmp_path / demo), **env)
     done = subprocess.run([sys.executable, str(REPO / "demos" / f"{demo}.py")], env=run_env,

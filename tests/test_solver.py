@@ -262,8 +262,10 @@ def _max_difference(a, b, field: str = "w") -> float:
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("name, seed, load", [("plain", 1.0, False), ("crowfoot_satin", 0.5, False),
-                                              ("orthogonal", 0.5, False), ("crowfoot_satin", 0.5, True)])
+@pytest.mark.parametrize("name, seed, load", [
+    ("plain", 1.0, False), ("crowfoot_satin", 0.5, False),
+    pytest.param("orthogonal", 0.5, False, marks=pytest.mark.slow),  # 33 s serial: the slow tier
+    pytest.param("crowfoot_satin", 0.5, True, marks=pytest.mark.slow)])  # under load: 124 s on 2 ranks
 def test_serial_and_parallel_runs_agree(name, seed, load):
     # the exact method's steps are continuous functions of the data: the partition (and MUMPS'
     # parallel sums, which differ from run to run under load) change only round-off, and the
@@ -288,6 +290,7 @@ def test_serial_and_parallel_runs_agree(name, seed, load):
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 24 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_every_yarn_dof_has_one_unknown_whatever_the_partition():
     # The orthogonal weave at 0.5 is partitioned so that some binder dofs are owned (in the parent
     # space) by a rank holding no binder cell around them; they once got no unknown on 2 ranks.
@@ -439,7 +442,8 @@ def test_model_margins_add_the_overlap_the_corrected_model_shows():
 
 
 @pytest.mark.serial
-@pytest.mark.parametrize("name", ["plain", "crowfoot_satin", "orthogonal"])
+@pytest.mark.parametrize("name", ["plain", "crowfoot_satin",
+                                  pytest.param("orthogonal", marks=pytest.mark.slow)])  # 14 s: the slow tier
 def test_whole_path_converges_on_weaves(name):
     result = run(build(name), Settings(MeshOptions(1.0)))
     s = result.summary()

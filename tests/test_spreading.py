@@ -112,6 +112,7 @@ def _loose_pressed(spreading: float, comm=MPI.COMM_WORLD):
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 21 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_a_loose_plain_weave_reaches_vf_half_only_by_spreading():
     # widths kept, its stacked yarns packed to 0.9069 are 0.573 mm thick: Vf 0.5 (0.502 mm) is
     # beyond the maximum packing (the sweep's three loose fabrics fail so, docs/sweep.md)

@@ -1,4 +1,4 @@
-"""The conforming periodic tet mesh (meshes/tetra.py) and the solve's least gap (--min-gap)."""
+"""The conforming periodic tet mesh (volume/tet/) and the solve's least gap (--min-gap)."""
 
 import numpy as np
 import pytest
@@ -6,9 +6,10 @@ import pytest
 from textile_fenicsx.common.errors import GeometryError, MeshError, TextileError
 from textile_fenicsx.io.config import load_model
 from textile_fenicsx.plate.solver import SolverOptions
-from textile_fenicsx.volume import tetra_checks as checks
 from textile_fenicsx.volume.box import Box, periodic_mismatch
-from textile_fenicsx.volume.tetra import TetOptions, tet_mesh
+from textile_fenicsx.volume.tet import checks
+from textile_fenicsx.volume.tet.mesher import tet_mesh
+from textile_fenicsx.volume.tet.options import TetOptions
 
 GAP = 0.04  # the least gap the small case is solved and meshed with [mm]
 
@@ -42,7 +43,7 @@ def test_only_the_face_nodes_are_snapped_and_each_onto_its_own_image():
     off its image. Snapping every node near the face onto it and onto the nearest image put both
     on one place, and the tet of the skin node, the face node and two more face nodes went flat
     (ortho_w3f4: 96 flat tets). Only the face nodes move; each - node takes its nearest + node."""
-    from textile_fenicsx.volume.tetra import _snap_periodic
+    from textile_fenicsx.volume.tet.elements import snap_periodic
 
     lo, hi = np.zeros(3), np.ones(3)
     points = np.array([[0.0, 0.5, 0.5], [0.0, 0.6, 0.5], [0.0, 0.5, 0.6],       # - face
@@ -50,7 +51,7 @@ def test_only_the_face_nodes_are_snapped_and_each_onto_its_own_image():
                        [1 - 5e-7, 0.5 + 1.3e-6, 0.5],                              # the leg's skin
                        [1 + 2e-7, 0.6 + 3e-7, 0.5]])                               # a 2nd claim on row 1
     skin = points[6].copy()
-    moved = _snap_periodic(points, lo, hi, [(0, np.array([3, 4, 5, 7]), np.array([0, 1, 2]))])
+    moved = snap_periodic(points, lo, hi, [(0, np.array([3, 4, 5, 7]), np.array([0, 1, 2]))])
     assert np.array_equal(points[6], skin)  # not a face node: left where it is
     assert np.array_equal(points[3:6] - [1, 0, 0], points[0:3])  # each face node on its image
     assert np.array_equal(points[7], [1.0, 0.6 + 3e-7, 0.5])  # row 1 is row 4's (nearer): row 7 only to the face
@@ -65,7 +66,7 @@ def test_a_flat_tet_is_refused_with_its_place():
     """Four nodes of one plane (3e-10 mm off it: 5e-13 mm^3 in a 1 mm^3 box, below FLAT) on the box's
     + x side, as gmsh left them where a binder's leg runs along the side of ortho_w3f4; then the
     same tet inside the box. A tet of a fifth of the box's volume passes."""
-    from textile_fenicsx.volume.tetra import _refuse_flat
+    from textile_fenicsx.volume.tet.elements import refuse_flat
 
     lo, hi = np.zeros(3), np.ones(3)
     points = np.array([[1.0, 0.2, 0.2], [1.0, 0.3, 0.2], [1.0, 0.2, 0.3], [1 - 3e-10, 0.26, 0.26],
@@ -75,11 +76,11 @@ def test_a_flat_tet_is_refused_with_its_place():
     assert vol[0] == pytest.approx(3e-10 * 0.005 / 3, rel=1e-4)
     with pytest.raises(GeometryError, match=r"1 flat tets .*\(1.000, 0.240, 0.240\) mm on the box's \+x side.*"
                                             r"--kind voxel"):
-        _refuse_flat("cell", points, tets, vol, lo, hi)
+        refuse_flat("cell", points, tets, vol, lo, hi)
     with pytest.raises(GeometryError, match=r"\(0.500, 0.240, 0.240\) mm inside the box; try another --size"):
-        _refuse_flat("cell", points, tets + 4, vol, lo, hi)
+        refuse_flat("cell", points, tets + 4, vol, lo, hi)
     big = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
-    _refuse_flat("cell", big, tets, np.abs(checks.signed_volumes(big, tets)), lo, hi)
+    refuse_flat("cell", big, tets, np.abs(checks.signed_volumes(big, tets)), lo, hi)
 
 
 @pytest.mark.serial
@@ -172,7 +173,7 @@ def test_the_reference_volume_is_the_yarn_surface_the_rays_converge_to(reference
     from dataclasses import replace
 
     from textile_fenicsx.correction.verify import tube
-    from textile_fenicsx.volume.tetra import model_volumes, ray_volumes
+    from textile_fenicsx.volume.tet.report import model_volumes, ray_volumes
 
     def traced(textile, points):
         return np.array([tube(y, replace(textile.resolution, section_points=points)).volume for y in textile.yarns])
@@ -191,11 +192,11 @@ def test_the_reference_volume_is_the_yarn_surface_the_rays_converge_to(reference
 
 def _spline_area(points: np.ndarray) -> float:
     """The area [mm^2] inside the closed spline the mesher lays through a section's points
-    (tetra_solids.section_curve, as the skins use it), read on a fine mesh."""
+    (solids.section_curve, as the skins use it), read on a fine mesh."""
     import gmsh
 
-    from textile_fenicsx.volume.tetra import _nodes
-    from textile_fenicsx.volume.tetra_solids import section_curve
+    from textile_fenicsx.volume.tet.solids import section_curve
+    from textile_fenicsx.volume.tet.surface_mesh import model_nodes
 
     started = not gmsh.isInitialized()
     if started:
@@ -210,7 +211,7 @@ def _spline_area(points: np.ndarray) -> float:
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.01)
         gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 100)
         gmsh.model.mesh.generate(2)
-        xyz, row = _nodes()
+        xyz, row = model_nodes()
         tri = xyz[row[gmsh.model.mesh.getElements(2, face)[2][0].astype(np.int64)]].reshape(-1, 3, 3)
         return float(0.5 * np.abs(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2]).sum())
     finally:
@@ -268,6 +269,7 @@ def test_touching_model_refused(loose_plain, comm):
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 41 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_flat_tets_inside_the_box_are_meshed_again_smaller(loose_plain, comm, monkeypatch):
     """gmsh can leave flat tets whose four nodes all lie on one yarn's surface, inside the box, which
     its optimisers cannot remove (two on binder1.375's gapped corrected model at 0.35 mm; none at
@@ -275,20 +277,21 @@ def test_flat_tets_inside_the_box_are_meshed_again_smaller(loose_plain, comm, mo
     them: the second, at 0.85 x 0.5 mm, is returned, periodic and whole. Flat tets on a side of the
     box are not meshed again (a yarn's surface runs along the side: a smaller size does not help),
     and a second failure names both sizes, on every rank."""
-    from textile_fenicsx.volume import tetra
+    from textile_fenicsx.volume.tet import mesher
+    from textile_fenicsx.volume.tet.elements import FlatTets
 
     gapped, _ = loose_plain
-    real, calls = tetra._refuse_flat, []
+    real, calls = mesher.refuse_flat, []
 
     def flat(times: int, inside: bool):
         def refuse(name, points, tets, vol, lo, hi):
             calls.append(1)
             if len(calls) <= times:
                 place = "inside the box" if inside else "on a side"
-                raise tetra.FlatTets(f"{name}: 1 flat tets at (0, 0, 0) mm {place}; try another --size", inside=inside)
+                raise FlatTets(f"{name}: 1 flat tets at (0, 0, 0) mm {place}; try another --size", inside=inside)
             real(name, points, tets, vol, lo, hi)
         calls.clear()
-        monkeypatch.setattr(tetra, "_refuse_flat", refuse)
+        monkeypatch.setattr(mesher, "refuse_flat", refuse)
 
     flat(1, inside=True)
     mesh = tet_mesh(gapped, TetOptions(size=0.5, gap=GAP), comm)
@@ -311,13 +314,13 @@ def test_lost_yarn_fails(loose_plain, comm, monkeypatch):
     """A yarn that OCC's cut by the box loses (here: no skin is made for yarn 0) fails the mesh,
     naming the yarn and its volumes, on every rank: the mesh that would be written holds none of
     it (before, the command succeeded with a report of -100 %)."""
-    from textile_fenicsx.volume import tetra_solids
+    from textile_fenicsx.volume.tet import solids
 
-    chains = tetra_solids.chains
+    chains = solids.chains
     def without_yarn_0(textile, i, *args, **kwargs):
         return [] if i == 0 else chains(textile, i, *args, **kwargs)
 
-    monkeypatch.setattr(tetra_solids, "chains", without_yarn_0)
+    monkeypatch.setattr(solids, "chains", without_yarn_0)
     gapped, _ = loose_plain
     with pytest.raises(MeshError, match=rf"holds 0 mm\^3 of {gapped.yarns[0].name} .*-100.0 %.*--kind voxel"):
         tet_mesh(gapped, TetOptions(size=0.5, gap=GAP), comm)
@@ -328,16 +331,16 @@ def test_surfaces_that_lose_volume_are_meshed_finer(loose_plain, comm, monkeypat
     """With 6 elements per 2 pi of curvature the loose plain weave's surface mesh encloses more than
     SHORT less than its yarns (the triangles are chords of their curved surfaces; 1.7 % here): it
     is meshed again with 12 (still 1.3 %), then 24 (0.9 %), and the tets' yarn volumes are within
-    1 %. The volume enclosed by the last surface mesh (tetra_checks.enclosed_volume) is what the
+    1 %. The volume enclosed by the last surface mesh (checks.enclosed_volume) is what the
     tets of each yarn then hold."""
-    from textile_fenicsx.volume import tetra
+    from textile_fenicsx.volume.tet import surface_mesh
 
-    enclosed, seen = tetra._enclosed, []
+    enclosed, seen = surface_mesh._enclosed, []
     def record(*args):
         seen.append(enclosed(*args))
         return seen[-1]
 
-    monkeypatch.setattr(tetra, "_enclosed", record)
+    monkeypatch.setattr(surface_mesh, "_enclosed", record)
     gapped, _ = loose_plain
     mesh = tet_mesh(gapped, TetOptions(size=0.3, gap=GAP, curvature=6), comm)
     if comm.rank != 0:
@@ -346,7 +349,7 @@ def test_surfaces_that_lose_volume_are_meshed_finer(loose_plain, comm, monkeypat
     r = mesh.report
     model = np.array([y["model_mm3"] for y in r["volume"]["per_yarn"]])
     meshed = np.array([y["meshed_mm3"] for y in r["volume"]["per_yarn"]])
-    assert np.max(1 - seen[0] / model) > tetra.SHORT
+    assert np.max(1 - seen[0] / model) > surface_mesh.SHORT
     assert r["curvature_per_2pi"] == 6 * 2 ** (len(seen) - 1) > 6
     # to the + faces' nodes snapped onto their images after (4e-7 mm here): 2e-9
     assert np.allclose(seen[-1], meshed, rtol=1e-7, atol=0)
@@ -365,7 +368,7 @@ def test_stations_follow_the_turns_where_the_skin_does_not_fold():
     from textile_fenicsx.model.sections import Ellipse
     from textile_fenicsx.model.yarn import Yarn
     from textile_fenicsx.model.yarn_sections import ConstantSection
-    from textile_fenicsx.volume import tetra_solids as solids
+    from textile_fenicsx.volume.tet import solids
 
     def yarn(r):
         nodes = [[0, 0, 0], [1, 0, 0], [1 + r, r, 0], [1 + r, 1 + r, 0]]
@@ -397,7 +400,7 @@ def test_a_station_whose_skin_folds_between_nodes_is_left_out():
     from textile_fenicsx.model.sections import Ellipse
     from textile_fenicsx.model.yarn import Yarn
     from textile_fenicsx.model.yarn_sections import ConstantSection
-    from textile_fenicsx.volume import tetra_solids as solids
+    from textile_fenicsx.volume.tet import solids
 
     tight = Yarn([[0, 0, 0], [1, 0, 0], [1.1, 0.1, 0], [1.1, 1.1, 0]], ConstantSection(Ellipse(0.6, 0.2)),
                  periodic=False, name="binder")
@@ -416,17 +419,17 @@ def test_stations_beside_a_side_are_left_out_only_where_the_yarn_crosses_it():
     yarn along x, stations 0.05 mm apart); a leg running down the side (a binder's, 0.004 mm from
     it) keeps all its stations where legs are kept (all but its ends are left out otherwise), and
     a yarn that runs along y, through the other sides only, keeps all its own."""
-    from textile_fenicsx.volume import tetra_sides
+    from textile_fenicsx.volume.tet import sides
 
     lo, length = np.array([0.0, -1.0, 0.0]), np.array([4.0, 2.0, 1.0])
     crossing = np.stack([np.linspace(-0.975, 0.975, 40), np.zeros(40), np.zeros(40)], axis=1)
-    out = tetra_sides.left_out(crossing, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)
+    out = sides.left_out(crossing, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)
     assert np.flatnonzero(out).tolist() == [18, 19, 20, 21]
     leg = np.stack([np.full(21, 0.004), np.zeros(21), np.linspace(0.0, 1.0, 21)], axis=1)
-    assert not tetra_sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25, legs=True).any()
-    assert tetra_sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)[1:-1].all()  # without legs
+    assert not sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25, legs=True).any()
+    assert sides.left_out(leg, np.array([4.0, 0.0, 0.0]), lo, length, 0.25)[1:-1].all()  # without legs
     along_y = np.stack([np.full(21, 0.004), np.linspace(-0.5, 0.5, 21), np.zeros(21)], axis=1)
-    assert not tetra_sides.left_out(along_y, np.array([0.0, 2.0, 0.0]), lo, length, 0.25).any()
+    assert not sides.left_out(along_y, np.array([0.0, 2.0, 0.0]), lo, length, 0.25).any()
 
 
 @pytest.mark.serial
@@ -435,9 +438,8 @@ def test_legs_keep_their_stations_only_where_leaving_them_out_strays_far(referen
     their stations moves the skins by more than 10 x the 5 % gap (13.5-14.6 x on the sweep's
     corrected orthogonal weaves): they keep them. The plain weave's yarns cross the sides at a
     shallow angle (at most 0.12 x): stations beside the sides are left out, as before."""
-    from textile_fenicsx.volume import tetra_sides
-    from textile_fenicsx.volume import tetra_solids as solids
-    from textile_fenicsx.volume.tetra import default_gap
+    from textile_fenicsx.volume.tet import sides, solids
+    from textile_fenicsx.volume.tet.options import default_gap
 
     o = TetOptions()
     for name, legs in (("ortho", True), ("plain", False)):
@@ -445,7 +447,7 @@ def test_legs_keep_their_stations_only_where_leaving_them_out_strays_far(referen
         sections = [solids.yarn_sections(t, i, o.spacing, o.points) for i in range(len(t.yarns))]
         c = t.cell
         lo, hi = np.array([c.x0, c.y0, 0.0]), np.array([c.x0 + c.lx, c.y0 + c.ly, 1.0])
-        assert tetra_sides.legs_on_sides(t, sections, lo, hi, o.spacing, default_gap(t, o)) is legs
+        assert sides.legs_on_sides(t, sections, lo, hi, o.spacing, default_gap(t, o)) is legs
 
 
 @pytest.mark.serial
@@ -457,14 +459,13 @@ def test_the_box_moves_into_the_gaps_between_the_yarns_along_its_sides_clear_of_
     box moves to midway between a leg and the next column: x = 2.8 k +- 0.095 (to 0.002 mm: the legs
     lean by 0.001). The cell's side x = 0 is in such a gap; the places tried next are the four
     beside x = +-2.8 (nearest first), then along x beside 5.6, and only then along y."""
-    from textile_fenicsx.volume import tetra_sides
-    from textile_fenicsx.volume import tetra_solids as solids
+    from textile_fenicsx.volume.tet import sides, solids
 
     t = load_model(reference_dir / "models" / "ortho.tg3")
     o = TetOptions()
     sections = [solids.yarn_sections(t, i, o.spacing, o.points) for i in range(len(t.yarns))]
     c = t.cell
-    moves = tetra_sides.moves(t, sections, np.array([c.x0, c.y0, 0.0]), np.array([c.x0 + c.lx, c.y0 + c.ly, 1.0]))
+    moves = sides.moves(t, sections, np.array([c.x0, c.y0, 0.0]), np.array([c.x0 + c.lx, c.y0 + c.ly, 1.0]))
     leg, gap = 0.16 / 2, (2.8 - 2.58) / 2
     beside = (leg + gap) / 2
     expected = [-(2.8 - beside), 2.8 - beside, -(2.8 + beside), 2.8 + beside]
@@ -489,9 +490,9 @@ def test_a_yarn_lost_by_the_cut_or_unpaired_faces_move_the_box(loose_plain, comm
     there), it moves on, to the next such place (2 mm along y: the only gap along x is taken),
     and the mesh is made there: periodic, every yarn's volume within 1 %, and the move in the
     report."""
-    from textile_fenicsx.volume import tetra_solids
+    from textile_fenicsx.volume.tet import solids
 
-    build, pair, tried = tetra_solids.build, tetra_solids.periodic_pairs, []
+    build, pair, tried = solids.build, solids.periodic_pairs, []
     def lost_at_the_origin(textile, lo, hi, *args, **kwargs):
         tried.append([float(lo[0] - textile.cell.x0), float(lo[1] - textile.cell.y0)])
         phase, lost = build(textile, lo, hi, *args, **kwargs)
@@ -502,8 +503,8 @@ def test_a_yarn_lost_by_the_cut_or_unpaired_faces_move_the_box(loose_plain, comm
             raise RuntimeError("the faces of the two sides along x do not pair up (made to fail here)")
         return pair(lo, hi, *args, **kwargs)
 
-    monkeypatch.setattr(tetra_solids, "build", lost_at_the_origin)
-    monkeypatch.setattr(tetra_solids, "periodic_pairs", unpaired_at_the_first_move)
+    monkeypatch.setattr(solids, "build", lost_at_the_origin)
+    monkeypatch.setattr(solids, "periodic_pairs", unpaired_at_the_first_move)
     mesh = _coarse_mesh(loose_plain, comm)
     if mesh is None:
         return
@@ -517,6 +518,7 @@ def test_a_yarn_lost_by_the_cut_or_unpaired_faces_move_the_box(loose_plain, comm
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 15 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_a_volume_mesh_failed_on_a_side_moves_the_box_off_the_edges_of_the_yarns_along_it(loose_plain, comm,
                                                                                           monkeypatch):
     """Where gmsh's volume mesh fails on facets of a side of the box (made to happen here, naming a
@@ -566,13 +568,13 @@ def test_a_volume_mesh_failed_on_a_side_moves_the_box_off_the_edges_of_the_yarns
 @pytest.mark.serial
 def test_the_z_bounds_of_a_skin_are_those_of_its_sections_and_their_splines():
     """A skin is ruled between its section splines (add_skin), so its extremes in z lie on its
-    edges (tetra_solids._z_bounds). Circles of radius r along a path that rises and falls by h
+    edges (solids._z_bounds). Circles of radius r along a path that rises and falls by h
     (with a station at each crest and trough): the bounds are the lowest centre - r and the
     highest + r, to the spline's error through 48 points of a circle (r (1 - cos(pi / 48)) at
     most: 2.1e-4 r); a ruled skin never swings past its sections between stations."""
     import gmsh
 
-    from textile_fenicsx.volume import tetra_solids
+    from textile_fenicsx.volume.tet import solids
 
     r, h = 0.2, 0.3
     angle = 2 * np.pi * np.arange(48) / 48
@@ -584,8 +586,8 @@ def test_the_z_bounds_of_a_skin_are_those_of_its_sections_and_their_splines():
     gmsh.option.setNumber("General.Terminal", 0)
     try:
         gmsh.model.add("skin")
-        skin = tetra_solids.add_skin(sections, "wavy")
-        lowest, highest = tetra_solids._z_bounds([skin])
+        skin = solids.add_skin(sections, "wavy")
+        lowest, highest = solids._z_bounds([skin])
     finally:
         gmsh.finalize()
     assert lowest == pytest.approx(-h - r, abs=2.1e-4 * r)
@@ -594,14 +596,14 @@ def test_the_z_bounds_of_a_skin_are_those_of_its_sections_and_their_splines():
 
 @pytest.mark.serial
 def test_an_uncarved_matrix_is_seen():
-    """The quick fragment's check (tetra_solids._carved): a yarn's volume lying in the box without
+    """The quick fragment's check (solids._carved): a yarn's volume lying in the box without
     being cut out of it (its faces shared with no other volume: what OCC's full glue left around
     one weft of the angle interlock) is uncarved; a rod through the box, cut by it and fragmented
     with the full glue after its cut faces are imprinted, is carved: its two end faces lie on the
     box's sides and every other face is shared with the matrix."""
     import gmsh
 
-    from textile_fenicsx.volume import tetra_solids
+    from textile_fenicsx.volume.tet import solids
 
     lo, hi = np.zeros(3), np.ones(3)
     gmsh.initialize(interruptible=False)
@@ -612,17 +614,17 @@ def test_an_uncarved_matrix_is_seen():
         occ.addBox(0, 0, 0, 1, 1, 1)
         ball = occ.addSphere(0.5, 0.5, 0.5, 0.3)
         occ.synchronize()
-        assert not tetra_solids._carved(ball, lo, hi)
+        assert not solids._carved(ball, lo, hi)
         gmsh.model.add("through")
         rod = occ.intersect([(3, occ.addCylinder(-0.5, 0.4, 0.5, 2.0, 0.1, 0.0, 0.2))],
                             [(3, occ.addBox(0, 0, 0, 1, 1, 1))])[0][0][1]
-        box = tetra_solids._imprinted_box(lo, hi, [rod])
-        phase = tetra_solids._fragment(box, [(0, rod)], tetra_solids.GLUE)
+        box = solids._imprinted_box(lo, hi, [rod])
+        phase = solids._fragment(box, [(0, rod)], solids.GLUE)
         assert sorted(phase.values()) == [0, 1]
         (yarn,) = [v for v, p in phase.items() if p == 1]
         ends = [f for _, f in gmsh.model.getBoundary([(3, yarn)], combined=False, oriented=False)
-                if tetra_solids._on_box(f, lo, hi)]
-        assert len(ends) == 2 and tetra_solids._carved(yarn, lo, hi)
+                if solids._on_box(f, lo, hi)]
+        assert len(ends) == 2 and solids._carved(yarn, lo, hi)
     finally:
         gmsh.finalize()
 
@@ -632,14 +634,14 @@ def test_an_uncarved_matrix_is_fragmented_again(loose_plain, comm, monkeypatch):
     """Where the quick fragment leaves the matrix uncarved around a yarn (made to happen here), the
     box is fragmented again with OCC's partial glue, and the mesh is made as usual: periodic,
     every yarn's volume within 1 %, no element in two yarns."""
-    from textile_fenicsx.volume import tetra_solids
+    from textile_fenicsx.volume.tet import solids
 
     checked = []
     def none_carved(volume, lo, hi):
         checked.append(volume)
         return False
 
-    monkeypatch.setattr(tetra_solids, "_carved", none_carved)
+    monkeypatch.setattr(solids, "_carved", none_carved)
     gapped, _ = loose_plain
     mesh = _coarse_mesh(loose_plain, comm)
     if mesh is None:
@@ -691,14 +693,14 @@ def test_the_api_meshes_the_satin_in_a_process_without_dolfinx(reference_dir, tm
     threads, both read it and one frees the buffer the other fills: `tfx.volume_mesh(..., kind
     "tet")` on the corrected satin died (SIGSEGV) in 5 of 5 fresh Python processes that had not
     imported DOLFINx (the CLI and the tests import it first, which narrowed the window; a small
-    model did not show it). The curves are now meshed on one thread (tetra.mesh_surfaces). One fresh
+    model did not show it). The curves are now meshed on one thread (surface_mesh.mesh_surfaces). One fresh
     process is enough to catch it again (it died in every one of five)."""
     import subprocess
     import sys
 
     from textile_fenicsx.api import solve
-    from textile_fenicsx.io.tg3 import write_tg3
-    from textile_fenicsx.volume.tetra import default_gap
+    from textile_fenicsx.io.tg3_write import write_tg3
+    from textile_fenicsx.volume.tet.options import default_gap
 
     textile = load_model(reference_dir / "models" / "satin4.tg3")
     gap = default_gap(textile, TetOptions())
@@ -743,13 +745,13 @@ def test_cornered_sections_traced_again(reference_dir, monkeypatch):
     in the surface mesh and the sections traced again with 48 points: the mesh is made, periodic,
     yarn volumes within 1 %. Without that second tracing, the error names the yarns and the place."""
     from textile_fenicsx.api import solve
-    from textile_fenicsx.volume import tetra
-    from textile_fenicsx.volume.tetra import default_gap
+    from textile_fenicsx.volume.tet import surface_mesh
+    from textile_fenicsx.volume.tet.options import default_gap
 
     textile = load_model(reference_dir / "fabrics" / "plain_w0.98_h0.2_ellipse_refine.tg3")
     gap = default_gap(textile, TetOptions())
     corrected = solve(textile, seed=0.5, solver=SolverOptions(min_gap=gap)).corrected
-    monkeypatch.setattr(tetra, "RETRACE", 0)  # not traced again: the crossing is named
+    monkeypatch.setattr(surface_mesh, "RETRACE", 0)  # not traced again: the crossing is named
     with pytest.raises(MeshError, match=r"the skins of yarn \d and yarn \d cross at \(.*\) mm .*--kind voxel"):
         tet_mesh(corrected, TetOptions(size=0.5, gap=gap, points=24))
     monkeypatch.undo()

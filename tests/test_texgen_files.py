@@ -8,7 +8,8 @@ import pytest
 from conftest import REFERENCE
 from textile_fenicsx.common.errors import FormatError, TextileError
 from textile_fenicsx.io.config import load_model, save_model
-from textile_fenicsx.io.tg3 import read_tg3, write_tg3
+from textile_fenicsx.io.tg3 import read_tg3
+from textile_fenicsx.io.tg3_write import write_tg3
 from textile_fenicsx.model.metrics import measure
 from textile_fenicsx.model.sections import Flat, Hybrid, PowerEllipse
 from textile_fenicsx.model.yarn import NodeSections

@@ -168,7 +168,7 @@ def test_volume_mesh_command_errors_name_the_culprit(tmp_path):
 
 
 def test_tet_sizes_beyond_the_bounds_are_refused():
-    from textile_fenicsx.volume.tetra import TetOptions, check_size
+    from textile_fenicsx.volume.tet.options import TetOptions, check_size
 
     lo, hi = np.zeros(3), np.array([11.2, 11.2, 1.0])
     with pytest.raises(TextileError, match=r"tet size 0.01 mm would give about 4.64e\+09 tets, more than the limit"):

@@ -17,7 +17,14 @@ from textile_fenicsx.common.parallel import install_excepthook as _install_excep
 _install_excepthook()  # under mpirun with several ranks: an uncaught exception ends every rank
 
 
-from textile_fenicsx.api import build, homogenise, read, show_progress, solve, volume_mesh  # noqa: E402
+from textile_fenicsx.api import (  # noqa: E402
+    build,
+    homogenise,
+    read,
+    show_progress,
+    solve,
+    volume_mesh,
+)
 from textile_fenicsx.version import __version__  # noqa: E402
 
 __all__ = ["__version__", "build", "homogenise", "read", "show_progress", "solve", "volume_mesh"]

@@ -4,7 +4,7 @@
     textile = tfx.read("satin4.tg3")          # or tfx.build("crowfoot_satin", spacing=2.8, ...)
     run = tfx.solve(textile, seed=0.5)         # mesh, contact solve, corrected textile
     run.corrected, run.metrics, run.verdict    # the corrected model, its numbers, its check
-    run.write("out/")                          # the output folder (README: "The output folder")
+    run.write("out/")                          # the output folder (docs/usage.md: "The output folder")
     cell = tfx.volume_mesh(run.corrected, kind="voxel", size=0.2)   # the periodic volume mesh
     result = tfx.homogenise(cell, fibre="e-glass", matrix="epoxy")  # C, S, constants, K
     cell.write("out/volume"), result.write("out/volume")

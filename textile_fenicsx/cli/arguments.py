@@ -75,7 +75,7 @@ def _plies_arguments(p: argparse.ArgumentParser) -> None:
     """--plies N, --ply-offsets, --ply-seed (solve, build)."""
     p.add_argument("--plies", type=int, default=1, metavar="N",
                    help="stack N plies of the fabric in one cell, ply k moved by its offset in the plane and by k "
-                   "times the fabric's thickness up; they nest by the same contact solve (README, Compaction)")
+                   "times the fabric's thickness up; they nest by the same contact solve (docs/compaction.md)")
     p.add_argument("--ply-offsets", nargs="+", metavar="DX,DY",
                    help="with --plies N: the N plies' in-plane offsets [mm] (default: random in the cell, "
                    "--ply-seed; the first ply in place)")
@@ -186,7 +186,7 @@ def _solve_command(subparsers: Subparsers) -> None:
                    "G to 5 %% of the thinnest yarn's height unless given)")
     p.add_argument("--out-of-core", action="store_true",
                    help="MUMPS keeps its factors on disk ($MUMPS_OOC_TMPDIR, else /tmp): less memory for large "
-                   "coupons (README, Performance), somewhat slower")
+                   "coupons (docs/performance.md), somewhat slower")
     p.add_argument("--mould", type=_mould, default="auto", metavar="auto|none|T",
                    help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
@@ -195,7 +195,7 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.add_argument("--compaction", type=float, metavar="K",
                    help="press the relaxed fabric further, its yarns flattening by Van Wyk's law p = K (phi^3 - "
                    "phi0^3), K = k E_f [MPa]: to --mould T (now also below the relaxed stack) or to --vf V "
-                   "(README, Compaction); writes compaction.json and compaction.png")
+                   "(docs/compaction.md); writes compaction.json and compaction.png")
     p.add_argument("--vf", type=float, metavar="V",
                    help="with --compaction: press to the fibre volume fraction V [-] (the fibres' volume from the "
                    "model's fibre data, or a yarn fibre fraction of 0.65 where it has none)")
@@ -206,7 +206,7 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.add_argument("--spreading", type=float, default=0.0, metavar="S",
                    help="with --compaction: a yarn pressed to r of its volume widens by r^-S into the room beside "
                    "it, and the fabric is solved and pressed again until the widths settle (0: widths kept, the "
-                   "default; 1: sections keep their area; README, Compaction)")
+                   "default; 1: sections keep their area; docs/compaction.md)")
     p.set_defaults(run=commands.solve)
 
 

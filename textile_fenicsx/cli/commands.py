@@ -69,7 +69,7 @@ def build(args) -> int:
     from mpi4py import MPI
 
     from textile_fenicsx.io.config import save_model
-    from textile_fenicsx.io.tg3 import write_tg3
+    from textile_fenicsx.io.tg3_write import write_tg3
     from textile_fenicsx.model.weaves import build
     from textile_fenicsx.plot.plotting import plot_textile
     from textile_fenicsx.plot.surfaces import YarnSurfaces
@@ -236,7 +236,7 @@ def solve(args) -> int:
         if comm.rank == 0:
             print(line)
             if args.out:
-                print(f"written to {args.out}/ (metrics.json: every number; README, The output folder)")
+                print(f"written to {args.out}/ (metrics.json: every number; docs/usage.md, The output folder)")
             if args.json:
                 print((out / "metrics.json").read_text() if args.out else json.dumps({**summary, "verdict": verdict},
                                                                                     indent=1))

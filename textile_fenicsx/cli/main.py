@@ -1,7 +1,7 @@
 """The `textile-fenicsx` command line: parse (arguments.py), run the command (commands.py), and
 turn what it raised into an exit code and one message.
 
-Exit codes (README, "When things go wrong"): 0 success; 1 the run failed (the contact iteration
+Exit codes (docs/errors.md): 0 success; 1 the run failed (the contact iteration
 did not converge, a singular or non-finite solve, a file that cannot be written, an internal
 error); 2 bad input or usage (the message names the culprit); 130 interrupted (Ctrl-C, SIGTERM).
 Under MPI an error on any rank prints its message and ends every rank (MPI_Abort), so no rank

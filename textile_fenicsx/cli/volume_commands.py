@@ -72,7 +72,7 @@ def with_gap(settings: Settings, textile: Textile, volume: VolumeOptions | None,
     yarn volume is lost) and the gap the mesh is then made for."""
     if volume is None or volume.kind != "tet":
         return settings, volume
-    from textile_fenicsx.volume.tetra import TetOptions, default_gap
+    from textile_fenicsx.volume.tet.options import TetOptions, default_gap
 
     gap = min_gap if min_gap > 0 else default_gap(textile, TetOptions(gap=volume.gap))
     return replace(settings, solver=replace(settings.solver, min_gap=gap)), replace(volume, gap=gap)

@@ -1,5 +1,5 @@
 """Bounds on every size, count and resolution that a model file, the command line or the API may
-ask for (README, "When things go wrong"). A value outside them is refused with a TextileError
+ask for (docs/errors.md). A value outside them is refused with a TextileError
 naming the field, before anything is built from it: an absurd size or count must end in a message,
 not in a gmsh abort or the kernel killing the process for memory.
 

@@ -32,7 +32,7 @@ BYTES_PER_RANK = 0.3e9
 # 300k: 27-node cells, about twice the entries per row); on 2 ranks the sum over ranks is 5.2 and
 # 6.6 kB/dof (GAMG's parallel setup), so estimates scale the per-dof part with the ranks. First
 # order has fewer entries per row: Q1 hexahedra on 2 ranks peaked at 2.49 GB per rank with 1.17e6
-# dofs (2026-11-26, the voxel satin of README's refinement study), 1.9 kB/dof and rank; P1 tets
+# dofs (2026-11-26, the voxel satin of docs/volume.md's refinement study), 1.9 kB/dof and rank; P1 tets
 # are not measured, and take P2's figure. Since 2026-11-27 the elastic operator is also held in
 # block CSR (cellproblem.py): bench/volume_bench.py then measured serially 3.5 kB/dof on P2
 # tetrahedra (4.62 and 6.13 GB at 1.33 and 1.76 M dofs) and 6.3 kB/dof on Q2 hexahedra (2.66 GB at

@@ -1,2 +1,2 @@
-"""Model files: TexGen's .tg3 read and written (tg3), our TOML/JSON (config).
+"""Model files: TexGen's .tg3 read (tg3) and written (tg3_write), our TOML/JSON (config).
 """

@@ -124,29 +124,13 @@ class Yarn:
     def node_tangents(self) -> np.ndarray:
         """Unit tangents at master nodes used by the Bezier interpolation (TexGen's rule)."""
         if self._node_tangents is None:
-            p = self.nodes
-            prev = np.vstack((p[-2] - self.period if self.periodic else p[0], p[:-1]))
-            nxt = np.vstack((p[1:], p[1] + self.period if self.periodic else p[-1]))
-            t = nxt - prev
-            t /= np.linalg.norm(t, axis=1, keepdims=True)
-            if self.tangents is not None:
-                own = np.linalg.norm(self.tangents, axis=1) > 0
-                t[own] = self.tangents[own]
-            if self.force_node_tangent_in_plane:
-                t[:, 2] = 0.0
-            self._node_tangents = t
+            self._node_tangents = _node_tangents(self.nodes, self.period, self.periodic, self.tangents,
+                                                 self.force_node_tangent_in_plane)
         return self._node_tangents
 
     def _cubic(self):
         if self._spline is None:
-            s = np.arange(len(self.nodes), dtype=float)
-            if self.periodic:
-                drift = np.outer(s / s[-1], self.period)  # periodic part plus a linear drift
-                part = self.nodes - drift
-                part[-1] = part[0]  # the last node is the first plus the period: equal, not to round-off
-                self._spline = (CubicSpline(s, part, bc_type="periodic"), self.period / s[-1])
-            else:
-                self._spline = (CubicSpline(s, self.nodes, bc_type="natural"), np.zeros(3))
+            self._spline = _cubic_spline(self.nodes, self.period, self.periodic)
         return self._spline
 
     def _segment(self, s):
@@ -182,18 +166,7 @@ class Yarn:
         """Positions, tangents, ups and sides (each (M, 3)) at parameters s: side = tangent x up."""
         pos, tan = self.centreline(s)
         i, t = self._segment(s)
-        ups = np.tile([0.0, 0.0, 1.0], (len(self.nodes), 1)) if self.ups is None else self.ups.copy()
-        ups[np.linalg.norm(ups, axis=1) == 0] = (0.0, 0.0, 1.0)
-        up = ups[i] + (ups[i + 1] - ups[i]) * t[:, None]
-        up -= np.sum(up * tan, axis=1, keepdims=True) * tan
-        norm = np.linalg.norm(up, axis=1, keepdims=True)
-        if np.any(norm < 1e-9):
-            raise TextileError(f"{self.name or 'yarn'}: its up vector is parallel to its tangent")
-        up /= norm
-        side = np.cross(tan, up)
-        if self.angles is not None and np.any(self.angles):
-            a = (self.angles[i] + (self.angles[i + 1] - self.angles[i]) * t)[:, None]
-            up, side = up * np.cos(a) - side * np.sin(a), side * np.cos(a) + up * np.sin(a)
+        up, side = _up_and_side(tan, i, t, self.ups, self.angles, len(self.nodes), self.name or "yarn")
         return pos, tan, up, side
 
     def length_table(self, per_segment: int = 64) -> tuple[np.ndarray, np.ndarray]:
@@ -244,3 +217,54 @@ class Yarn:
         pos, _, up, side = self.frames(s)
         sec = self.section_points(s, n_points) * scale
         return pos[:, None, :] + sec[..., :1] * side[:, None, :] + sec[..., 1:] * up[:, None, :]
+
+
+def _cubic_spline(nodes: np.ndarray, period: np.ndarray, periodic: bool) -> tuple[CubicSpline, np.ndarray]:
+    """The "cubic" centreline through the nodes (N, 3) at s = 0..N-1 and its drift per unit of s: a
+    periodic spline of the nodes less a linear drift of `period` along s, or a natural spline
+    (no drift)."""
+    s = np.arange(len(nodes), dtype=float)
+    if periodic:
+        drift = np.outer(s / s[-1], period)  # periodic part plus a linear drift
+        part = nodes - drift
+        part[-1] = part[0]  # the last node is the first plus the period: equal, not to round-off
+        return CubicSpline(s, part, bc_type="periodic"), period / s[-1]
+    return CubicSpline(s, nodes, bc_type="natural"), np.zeros(3)
+
+
+def _node_tangents(p: np.ndarray, period: np.ndarray, periodic: bool, tangents: np.ndarray | None,
+                   in_plane: bool) -> np.ndarray:
+    """Unit tangents at the master nodes p (N, 3) by TexGen's rule: the normalised (next - previous)
+    node (periodic neighbours taken across the repeat `period`), a node's own tangent where its row
+    of `tangents` is not zero, with no z component where `in_plane`."""
+    prev = np.vstack((p[-2] - period if periodic else p[0], p[:-1]))
+    nxt = np.vstack((p[1:], p[1] + period if periodic else p[-1]))
+    t = nxt - prev
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    if tangents is not None:
+        own = np.linalg.norm(tangents, axis=1) > 0
+        t[own] = tangents[own]
+    if in_plane:
+        t[:, 2] = 0.0
+    return t
+
+
+def _up_and_side(tan: np.ndarray, i: np.ndarray, t: np.ndarray, ups: np.ndarray | None, angles: np.ndarray | None,
+                 n_nodes: int, label: str) -> tuple[np.ndarray, np.ndarray]:
+    """The sections' up and side unit vectors (M, 3) at centreline points of unit tangents `tan` in
+    segments i at local t: the master nodes' up vectors (None or zero rows: +z) interpolated along
+    the segment and made normal to the tangent, side = tangent x up; both turned about the tangent
+    by the nodes' angles [rad], interpolated likewise."""
+    ups = np.tile([0.0, 0.0, 1.0], (n_nodes, 1)) if ups is None else ups.copy()
+    ups[np.linalg.norm(ups, axis=1) == 0] = (0.0, 0.0, 1.0)
+    up = ups[i] + (ups[i + 1] - ups[i]) * t[:, None]
+    up -= np.sum(up * tan, axis=1, keepdims=True) * tan
+    norm = np.linalg.norm(up, axis=1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise TextileError(f"{label}: its up vector is parallel to its tangent")
+    up /= norm
+    side = np.cross(tan, up)
+    if angles is not None and np.any(angles):
+        a = (angles[i] + (angles[i + 1] - angles[i]) * t)[:, None]
+        up, side = up * np.cos(a) - side * np.sin(a), side * np.cos(a) + up * np.sin(a)
+    return up, side

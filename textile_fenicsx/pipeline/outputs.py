@@ -27,7 +27,7 @@ import numpy as np
 import dolfinx
 from textile_fenicsx.common.files import naming, output_lock, staged_folder
 from textile_fenicsx.io.config import save_model
-from textile_fenicsx.io.tg3 import write_tg3
+from textile_fenicsx.io.tg3_write import write_tg3
 from textile_fenicsx.version import __version__
 
 log = logging.getLogger(__name__)

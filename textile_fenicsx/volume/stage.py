@@ -2,7 +2,7 @@
 
 `volume_mesh(textile, options, comm)` picks the cell (`meshes.volume.cell_box`), each yarn's fibre
 volume fraction (the model's fibre data, or `options.yarn_vf`, or the stated default), checks the
-memory, and runs the mesher of `options.kind` on rank 0: `meshes.voxel` or `meshes.tetra`.
+memory, and runs the mesher of `options.kind` on rank 0: `volume.voxel` or `volume.tet`.
 `mesh_cell(...)` does that and distributes the mesh to DOLFINx: a `CellMesh`, which writes the files.
 """
 
@@ -38,7 +38,7 @@ class VolumeOptions:
     fibre volume fraction [-], instead of the model's fibre data. z_range: the cell through the
     thickness (zmin, zmax) [mm], e.g. a mould's cavity; None: the yarns' own extent (tet: padded by
     half the gap). gap: tet only, the least gap between yarns the mesh is made for [mm]
-    (meshes.tetra: default 5 % of the thinnest yarn's height). memory_limit: largest memory [GB] the
+    (volume.tet: default 5 % of the thinnest yarn's height). memory_limit: largest memory [GB] the
     mesh may take (default: what the system has available).
     """
 
@@ -106,9 +106,10 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
 
 
 def _tet(textile: Textile, options: VolumeOptions, vf: list[float]) -> VolumeMesh:
-    """The conforming tet mesh (meshes.tetra, on this rank) as a VolumeMesh."""
+    """The conforming tet mesh (volume.tet, on this rank) as a VolumeMesh."""
     from textile_fenicsx.volume.box import Box
-    from textile_fenicsx.volume.tetra import TetOptions, tet_mesh
+    from textile_fenicsx.volume.tet.mesher import tet_mesh
+    from textile_fenicsx.volume.tet.options import TetOptions
 
     tet = tet_mesh(textile, TetOptions(size=options.element_size, gap=options.gap, z_range=options.z_range,
                                        memory_limit=options.memory_limit), MPI.COMM_SELF)

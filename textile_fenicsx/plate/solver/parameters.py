@@ -108,7 +108,7 @@ class SolverOptions:
     min_gap: the least gap [mm] the exact method keeps between yarns in contact, and between a yarn
     and a mould's platens (default 0: the yarns touch): added to every contact node's margin, so the
     yarns' sections, and so their volumes, are unchanged (a conforming tet mesh needs a gap of
-    matrix between the yarns: meshes/tetra.py). settle_tol: where the yarns flatten, their
+    matrix between the yarns: volume/tet/). settle_tol: where the yarns flatten, their
     forces give the platens' pressure: a solve whose yarns settled to displacement_tol with its
     forces out of balance (above solver.newton.DUAL_RTOL) goes on until a full step moves less than
     this [mm] (None: it stops, and its forces are refitted; a compaction's steps set it, see

@@ -1,4 +1,4 @@
-"""Checks of a tet mesh and of the model it is made from (meshes/tetra.py): pure numpy.
+"""Checks of a tet mesh and of the model it is made from (mesher.py): pure numpy.
 
 - `yarn_gaps`: the least vertical gap between any two yarns over a grid of the cell (negative: an
   overlap), with the pair and the place, measured by the model's vertical rays;

@@ -1,5 +1,5 @@
-"""Where the sides of a tet mesh's box cut the yarns (meshes/tetra.py builds the box, tetra_solids.py
-the yarns).
+"""Where the sides of a tet mesh's box cut the yarns (options.py and surface_mesh.py build the box,
+solids.py the yarns).
 
 The box cuts each yarn's skin, a chain of ruled faces between section stations:
 - A station of a yarn that crosses a side, nearer than BESIDE x spacing to it, is left out of the
@@ -81,7 +81,7 @@ def legs_on_sides(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, 
                   gap: float) -> bool:
     """Whether the skins must keep the legs' stations on the box's sides: leaving out every station
     near a side moves some skin by more than LEGS x the gap (module docstring). sections: each
-    yarn's section polygons (M, K, 3) over one period (tetra_solids.yarn_sections)."""
+    yarn's section polygons (M, K, 3) over one period (solids.yarn_sections)."""
     worst = 0.0
     for y, one in zip(textile.yarns, sections):
         if y.periodic:
@@ -147,7 +147,7 @@ def moves(textile: Textile, sections: list[np.ndarray], lo: np.ndarray, hi: np.n
     along x, then along y, into the gaps between the yarns that do not cross that axis's sides,
     midway between the legs there and their sides (nearest the box's own place first; none within
     STILL x the cell of it). sections: each yarn's section polygons (M, K, 3) over one period
-    (tetra_solids.yarn_sections)."""
+    (solids.yarn_sections)."""
     out = []
     for ax in (0, 1):
         extents = _along(textile, sections, ax)

@@ -1,4 +1,4 @@
-"""The yarn solids of a tet mesh in gmsh's OpenCASCADE kernel (meshes/tetra.py drives it).
+"""The yarn solids of a tet mesh in gmsh's OpenCASCADE kernel (surface_mesh.py drives it).
 
 Each yarn is a chain of its section polygons along its centreline. A periodic yarn's chain is its
 stations over whole periods, one chain per lateral copy (a shift by the cell's vectors that is not
@@ -15,7 +15,7 @@ imprinted on the box's faces (copies of them, cut into the box alone: planar, qu
 each one lies on the box as a whole face, and the box is fragmented by all the pieces with OCC's
 full glue: the arguments share whole faces and nothing else, and OCC does not search every face
 of a yarn against the faces of the yarns near it for intersections (there are none:
-meshes/tetra.py holds a gap between them, and tetra_checks finds skins that cross in it). With
+mesher.py holds a gap between them, and checks.py finds skins that cross in it). With
 the partial glue (option 1) this fragment used before, that search was most of the mesher's time:
 on the corrected satin the fragment took 99 s with it, 5 s now (one thread, under load; its four
 parallel warps alone, 1 s with it); docs/tet_mesh.md.
@@ -28,7 +28,7 @@ import logging
 import numpy as np
 
 from textile_fenicsx.model.textile import Textile
-from textile_fenicsx.volume import tetra_sides as sides
+from textile_fenicsx.volume.tet import sides
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,7 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
     yarn's copy is a chain of its periods, one per lateral shift by the cell's vectors, trimmed to
     the stations whose sections reach the box plus `margin` stations at each end (so that the box
     cuts its skin where the ends no longer shape it), less the stations beside the box's sides
-    (tetra_sides.left_out; `legs`: a leg down a side keeps its own); a piece's copies are the
+    (sides.left_out; `legs`: a leg down a side keeps its own); a piece's copies are the
     piece moved by the cell's vectors."""
     yarn = textile.yarns[i]
     one = yarn_sections(textile, i, spacing, points, shrink)
@@ -150,7 +150,7 @@ def chains(textile: Textile, i: int, lo: np.ndarray, hi: np.ndarray, spacing: fl
             continue
         if yarn.periodic:
             sec = sec[max(meets[0] - margin, 0):meets[-1] + margin + 1]
-            # no station just beside a side of the box that the yarn crosses (tetra_sides)
+            # no station just beside a side of the box that the yarn crosses (sides.py)
             sec = sec[~sides.left_out(sec.mean(axis=1), yarn.period, lo, L, spacing, legs)]
         out.append(sec)
     return out
