@@ -10,6 +10,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mpi4py import MPI
 
@@ -50,3 +51,28 @@ def reference_dir():
     if not REFERENCE.is_dir():
         pytest.fail(f"reference data not found at {REFERENCE} (set TEXTILE_FENICSX_REFERENCE)")
     return REFERENCE
+
+
+def gmsh_groups(path) -> dict[str, tuple[int, float]]:
+    """Each physical volume group of a .msh file as gmsh itself opens it: name -> (elements, their
+    volume [mm^3] by gmsh's own measure). gmsh reads the file into a model of its own, removed after."""
+    import gmsh
+
+    initialised = gmsh.isInitialized()
+    if not initialised:
+        gmsh.initialize(["-noenv"], interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.model.add("read back")
+    try:
+        gmsh.merge(str(path))
+        groups = {}
+        for dim, tag in gmsh.model.getPhysicalGroups(3):
+            tags = [t for entity in gmsh.model.getEntitiesForPhysicalGroup(dim, tag)
+                    for t in np.concatenate(gmsh.model.mesh.getElements(dim, entity)[1] or [[]])]
+            volume = float(np.sum(gmsh.model.mesh.getElementQualities(tags, "volume"))) if tags else 0.0
+            groups[gmsh.model.getPhysicalName(dim, tag)] = (len(tags), volume)
+        return groups
+    finally:
+        gmsh.model.remove()
+        if not initialised:
+            gmsh.finalize()

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from conftest import gmsh_groups
 from textile_fenicsx.common.errors import GeometryError, MeshError, TextileError
 from textile_fenicsx.io.config import load_model
 from textile_fenicsx.plate.solver import SolverOptions
@@ -684,6 +685,12 @@ def test_small_mesh(loose_plain, comm, mpi_tmp_path):
     assert len(back.points) == len(mesh.points)
     assert sum(len(c.data) for c in back.cells if c.type == "tetra") == len(mesh.cells)
     assert set(back.field_data) == {"matrix", *mesh.yarn_names}
+    # gmsh itself opens it: a named group per phase with that phase's tets, positive volumes summing
+    # to the mesh's per phase (gmsh's measure: no tet lost or turned over)
+    groups = gmsh_groups(mpi_tmp_path / "volume.msh")
+    for p, name in enumerate(["matrix", *mesh.yarn_names]):
+        assert groups[name][0] == np.count_nonzero(mesh.phase == p)
+        assert groups[name][1] == pytest.approx(mesh.phase_volumes()[p], rel=1e-10)
 
 
 @pytest.mark.slow

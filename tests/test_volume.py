@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from conftest import gmsh_groups
 from textile_fenicsx.common.errors import FormatError, TextileError
 from textile_fenicsx.io.config import textile_from_dict
 from textile_fenicsx.volume.box import Box, periodic_mismatch
@@ -88,9 +89,19 @@ def test_volume_files_read_back_with_tags_and_fields(comm, mpi_tmp_path):
         assert names == ["mesh_report.json", "volume.h5", "volume.inp", "volume.msh", "volume.vtu", "volume.xdmf"]
         import meshio
 
-        for name in ("volume.msh", "volume.vtu"):
-            m = meshio.read(mpi_tmp_path / "vol" / name)
-            assert len(m.cells[0].data) == cell.report["elements"]
+        m = meshio.read(mpi_tmp_path / "vol" / "volume.vtu")
+        assert len(m.cells[0].data) == cell.report["elements"]
+        # gmsh opens volume.msh with each phase a named group holding that phase's voxels, and its own
+        # measure of their volume is the mesh's (no voxel lost, repeated or turned over)
+        vm = cell.mesh
+        groups = gmsh_groups(mpi_tmp_path / "vol" / "volume.msh")
+        names = ["matrix", *vm.yarn_names]
+        assert set(groups) == set(names)
+        for p, name in enumerate(names):
+            assert groups[name][0] == np.count_nonzero(vm.phase == p)
+            assert groups[name][1] == pytest.approx(vm.phase_volumes()[p], rel=1e-12)
+        back = meshio.read(mpi_tmp_path / "vol" / "volume.msh")  # meshio reads the phases back too (by block)
+        assert np.array_equal(np.bincount(np.concatenate(back.cell_data["gmsh:physical"])), np.bincount(vm.phase + 1))
         inp = (mpi_tmp_path / "vol" / "volume.inp").read_text()
         assert inp.count("*Elset") == 5 and "*Orientation, name=FIBRE_AXES" in inp
         vf = 600 / 2550 / (np.pi / 4 * 1.6 * 0.3)  # the fibre data's intra-yarn fraction

@@ -4,7 +4,8 @@
   the fibre direction and fibre fraction as DG0 fields.
 - `write_volume`: volume.xdmf + volume.h5 (DOLFINx's own XDMF: the mesh, the cell tags "phase" and
   the DG0 fields "direction" and "yarn_vf"; `read_volume` reads it back on any number of ranks),
-  volume.msh (gmsh 4.1: physical groups "matrix" = 1 and the yarns 2, 3, ... by name), volume.vtu
+  volume.msh (gmsh 4.1 by gmsh: a volume entity and a physical group per phase, "matrix" = 1 and
+  the yarns 2, 3, ... by name), volume.vtu
   (ParaView: phase, direction, yarn_vf as cell data), volume.inp (Abaqus: an element set per yarn
   and for the matrix, *Orientation by a distribution per element: local axis 1 the fibre direction)
   and mesh_report.json.
@@ -176,13 +177,42 @@ def _meshio_mesh(vm: VolumeMesh, cell_data: dict[str, list[np.ndarray]]) -> Any:
     return meshio.Mesh(vm.points, [(_CELL[vm.cells.shape[1]][0], vm.cells)], cell_data=cell_data)
 
 
+# gmsh's element types of the volume meshes' cells (its node order is VTK's and meshio's for both)
+_GMSH_TYPE = {8: 5, 4: 4}
+
+
 def write_msh(vm: VolumeMesh, path: Path) -> None:
-    """gmsh 4.1 with physical groups: 1 the matrix, 2 + i yarn i (named)."""
-    tag = (vm.phase + 1).astype(np.int32)
-    mesh = _meshio_mesh(vm, {"gmsh:physical": [tag], "gmsh:geometrical": [tag]})
-    mesh.field_data = {"matrix": np.array([1, 3])} | {n: np.array([i + 2, 3]) for i, n in enumerate(vm.yarn_names)}
-    with naming(path):
-        mesh.write(path, file_format="gmsh", binary=False)
+    """gmsh 4.1, written by gmsh itself: one discrete volume entity per phase (tag 1 the matrix, 2 + i
+    yarn i) holding that phase's elements, and a physical group of the same tag and the phase's name
+    on each, so that gmsh opens the file with the phases as groups (and meshio reads them back as
+    "gmsh:physical"). Phases with no element get no entity."""
+    import gmsh
+
+    names = ["matrix", *vm.yarn_names]
+    initialised = gmsh.isInitialized()
+    if not initialised:
+        gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.model.add("textile_fenicsx volume")
+    try:
+        phases = [p for p in range(len(names)) if np.any(vm.phase == p)]
+        for p in phases:
+            gmsh.model.addDiscreteEntity(3, p + 1)
+        nodes = np.arange(1, len(vm.points) + 1)
+        gmsh.model.mesh.addNodes(3, phases[0] + 1, nodes, vm.points.ravel())
+        for p in phases:
+            members = np.flatnonzero(vm.phase == p)
+            gmsh.model.mesh.addElementsByType(p + 1, _GMSH_TYPE[vm.cells.shape[1]], members + 1,
+                                              (vm.cells[members] + 1).ravel())
+            gmsh.model.addPhysicalGroup(3, [p + 1], p + 1, name=names[p])
+        gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+        gmsh.option.setNumber("Mesh.Binary", 0)
+        with naming(path):
+            gmsh.write(str(path))
+    finally:
+        gmsh.model.remove()
+        if not initialised:
+            gmsh.finalize()
 
 
 def write_vtu(vm: VolumeMesh, path: Path) -> None:
