@@ -20,6 +20,7 @@ _install_excepthook()  # under mpirun with several ranks: an uncaught exception 
 from textile_fenicsx.api import (  # noqa: E402
     build,
     homogenise,
+    permeability,
     read,
     show_progress,
     solve,
@@ -27,4 +28,4 @@ from textile_fenicsx.api import (  # noqa: E402
 )
 from textile_fenicsx.version import __version__  # noqa: E402
 
-__all__ = ["__version__", "build", "homogenise", "read", "show_progress", "solve", "volume_mesh"]
+__all__ = ["__version__", "build", "homogenise", "permeability", "read", "show_progress", "solve", "volume_mesh"]

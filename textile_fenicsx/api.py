@@ -100,6 +100,24 @@ def homogenise(volume, fibre="e-glass", matrix="epoxy", comm=None, **options) ->
                        HomogeniseOptions(**options))
 
 
+def permeability(volume, yarns="gebart", fibre_radius=None, comm=None, **options):
+    """The permeability tensor of a meshed cell (what `volume_mesh` returns, or the path of a
+    volume.xdmf it wrote): three periodic Stokes-Brinkman cell problems. yarns: "gebart" (Gebart's
+    laws at each element's fibre fraction and direction, with the fibre radius `fibre_radius` [mm]),
+    "impermeable" or a permeability [m^2]. Other PermeabilityOptions by name. Returns a
+    Permeability: `.K` [mm^2], `.K_m2`, `.summary()`, `.write(folder)` (permeability.json)."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.flow.effective import PermeabilityOptions
+    from textile_fenicsx.flow.effective import permeability as _permeability
+    from textile_fenicsx.volume.files import read_volume
+
+    fields = getattr(volume, "fields", None)
+    if fields is None:
+        fields = read_volume(volume, comm or MPI.COMM_WORLD)
+    return _permeability(fields, PermeabilityOptions(yarns=yarns, fibre_radius=fibre_radius, **options))
+
+
 def show_progress(level: int = logging.INFO, stream=None) -> None:
     """Print the library's progress lines (mesh, contact steps, outputs) from MPI rank 0."""
     from mpi4py import MPI

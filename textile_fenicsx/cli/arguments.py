@@ -49,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     _solve_command(subparsers)
     _volume_mesh_command(subparsers)
     _homogenise_command(subparsers)
+    _permeability_command(subparsers)
     return parser
 
 
@@ -253,3 +254,38 @@ def _homogenise_command(subparsers: Subparsers) -> None:
                    help="refuse a mesh whose cell problems would need more memory than this (default: what is "
                    "available)")
     p.set_defaults(run=volume_commands.homogenise)
+
+
+def _yarn_permeability(text: str) -> str | float:
+    """--yarn-permeability: gebart, impermeable or a positive number of m^2."""
+    if text in ("gebart", "impermeable"):
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be gebart, impermeable or a permeability in m^2, not "
+                                         f"{text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"a permeability must be a positive number of m^2, not {text!r}")
+    return value
+
+
+def _permeability_command(subparsers: Subparsers) -> None:
+    """`permeability`: the permeability tensor of a meshed cell."""
+    p = subparsers.add_parser("permeability", help="permeability tensor of a meshed periodic cell (Stokes-Brinkman)",
+                              description=volume_commands.PERMEABILITY_DESCRIPTION)
+    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder for permeability.json (created if "
+                   "missing)")
+    p.add_argument("--yarn-permeability", type=_yarn_permeability, default="gebart", metavar="gebart|impermeable|K",
+                   help="the yarns: Gebart's laws at each element's fibre fraction and direction (default), solid "
+                   "(impermeable: no-slip on their surfaces), or an isotropic permeability K in m^2")
+    p.add_argument("--fibre-radius", type=float, metavar="MM",
+                   help="the fibres' radius for Gebart's laws [mm] (default 0.0035, with a warning)")
+    p.add_argument("--degree", type=int, default=2, choices=[2],
+                   help="the velocity's degree (Taylor-Hood: the pressure's is one less)")
+    p.add_argument("--memory-limit", type=float, metavar="GB",
+                   help="refuse a mesh whose direct solve would need more memory than this (default: what is "
+                   "available)")
+    p.set_defaults(run=volume_commands.permeability)
+

@@ -134,6 +134,32 @@ HOMOGENISE_DESCRIPTION = (
     "the conductivity K (W/(m K)), Vf, dofs, iterations, seconds; prints one line. Runs under mpirun.")
 
 
+PERMEABILITY_DESCRIPTION = (
+    "The permeability tensor of a meshed periodic cell: three Stokes-Brinkman cell problems (a unit mean "
+    "pressure gradient along x, y and z; Stokes in the pores, Brinkman in the yarns with the fluid's viscosity; "
+    "Taylor-Hood elements; periodic in x, y and z), K_ij = mu <u_i>. Writes DIR/permeability.json: K in m^2 and "
+    "mm^2, its principal values and directions, the cell's Vf and porosity, dofs, seconds, checks. Gebart's laws "
+    "are an upper bound for random packings; the flow is slow (Stokes).")
+
+
+def permeability(args: argparse.Namespace) -> int:
+    from mpi4py import MPI
+
+    from textile_fenicsx.api import permeability as run_permeability
+    from textile_fenicsx.flow.effective import PermeabilityOptions
+
+    comm = MPI.COMM_WORLD
+    PermeabilityOptions(args.yarn_permeability, args.fibre_radius, args.degree)  # refused before any work
+    with claim_output(args.out, inputs=[args.mesh], names=("permeability.json",), force=True, comm=comm):
+        result = run_permeability(args.mesh, args.yarn_permeability, args.fibre_radius, comm, degree=args.degree,
+                                  memory_limit=args.memory_limit)
+        result.write(args.out, comm)
+    if comm.rank == 0:
+        print(result.summary())
+        print(Path(args.out) / "permeability.json")
+    return 0
+
+
 def homogenise(args: argparse.Namespace) -> int:
     from mpi4py import MPI
 

@@ -53,6 +53,18 @@ def available_memory() -> float:
     return float("inf")
 
 
+# The flow cell problem's direct solve (flow/problem.py: MUMPS' LU of the Taylor-Hood saddle point):
+# 2.98 GB peak for 123 901 unknowns on one rank, 2.16 GB a rank on two (the corrected satin's voxels at
+# 0.3 mm, Q2-Q1, 2026-12-07): 24 kB an unknown there, the fill of a 3D factor growing as n^(4/3)
+FLOW_BYTES_PER_DOF = 24e3
+FLOW_REFERENCE_DOFS = 1.24e5
+
+
+def flow_bytes(dofs: int) -> float:
+    """The flow cell problem's estimated peak [bytes] for `dofs` unknowns (FLOW_BYTES_PER_DOF)."""
+    return FLOW_BYTES_PER_DOF * dofs * max(1.0, dofs / FLOW_REFERENCE_DOFS) ** (1 / 3)
+
+
 def check(bytes_needed: float, what: str, hint: str, limit_gb: float | None = None) -> None:
     """Raise TextileError if a stage would need more than `limit_gb` [GB] (None: the memory
     available now). The message reads "{what} need about N GB, more than {the limit} (L GB);
