@@ -365,7 +365,8 @@ def test_every_option_of_every_command_has_help():
 
     parser = build_parser()
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    assert set(commands.choices) == {"versions", "report", "build", "mesh", "solve", "volume-mesh", "homogenise"}
+    assert set(commands.choices) == {"versions", "report", "build", "mesh", "solve", "volume-mesh", "homogenise",
+                                        "permeability"}
     for name, sub in commands.choices.items():
         assert sub.description or name == "versions", name
         text = sub.format_help()
