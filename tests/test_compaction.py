@@ -270,6 +270,7 @@ def test_steps_settled_to_the_step_tolerance_take_fewer_newton_steps_and_keep_th
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 11 s serially, 23 s under mpirun -n 2 (fresh clone, 2026-12-07): the slow tier
 def test_forces_that_settled_out_of_balance_are_refitted_and_the_pressure_is_one_number(reference_dir):
     # TexGen's refined jammed plain weave pressed to Vf 0.5: a platen node's slack fell to
     # round-off before its force grew, and the steps settled with their forces out of balance by
@@ -462,6 +463,7 @@ def test_a_ply_whose_yarn_runs_along_the_cells_side_is_corrected():
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 9 s serially, 14 s under mpirun -n 2 (fresh clone, 2026-12-07): the slow tier
 def test_texgens_own_stack_of_plies_nests_through_the_contact_solve(reference_dir):
     # TexGen's CTextileLayered (plain_layered.tg3: two plies of plain.tg3, the second moved by
     # (1.0, 0.5) mm and dropped by NestLayers, interpenetrating) is read as a stack of 2 plies and

@@ -105,6 +105,7 @@ def test_free_coupon_holds_every_yarn_that_reaches_in():
 
 
 @pytest.mark.mpi
+@pytest.mark.slow  # 11 s serially, 14 s under mpirun -n 2 (fresh clone, 2026-12-07): the slow tier
 def test_free_coupon_is_symmetric_and_its_edge_effect_decays():
     # A 3 x 3 plain coupon with free edges is its own image under a half turn about its centre
     # (warp i -> 5 - i, weft j -> 5 - j keeps every crossing's parity): its solution must be too,
