@@ -32,15 +32,15 @@ from textile_fenicsx.common.errors import GeometryError, SolverError
 from textile_fenicsx.flow.forms import stokes_brinkman_forms
 from textile_fenicsx.homogenisation.cellproblem import cell_measure
 from textile_fenicsx.homogenisation.periodic import Box, check_node_periodicity
+from textile_fenicsx.plate.solver.linear import DIRECT_LU, DirectSolver
 
 __all__ = ["DIRECT", "FlowCellProblem"]
 
 log = logging.getLogger(__name__)
 
-# A saddle point of a few hundred thousand unknowns: MUMPS' LU with its own pivoting
-DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
-
-_serial = iter(range(1 << 30))
+# A saddle point of a few hundred thousand unknowns: MUMPS' LU with its own pivoting (the plate
+# solver's DIRECT_LU and DirectSolver: options under a prefix, removed once read)
+DIRECT = DIRECT_LU
 
 
 def _labelled_dofs(W: dolfinx.fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -184,19 +184,10 @@ class FlowCellProblem:
 
     def _solver(self, options: dict) -> None:
         t0 = time.perf_counter()
-        self.ksp = self._keep(PETSc.KSP().create(self.comm))
-        prefix = f"tfx_flow_{next(_serial)}_"
-        self.ksp.setOptionsPrefix(prefix)
-        database = PETSc.Options()
-        for key, value in options.items():
-            database[prefix + key] = value
-        try:
-            self.ksp.setOperators(self.A)
-            self.ksp.setFromOptions()
-            self.ksp.setUp()
-        finally:
-            for key in options:
-                database.delValue(prefix + key)
+        self.direct = DirectSolver(self.comm, options, prefix="tfx_flow")
+        self._objects.append(self.direct)
+        self.direct.factor(self.A)
+        self.ksp = self.direct.ksp
         self.setup_seconds = time.perf_counter() - t0
 
     def solve(self, forces: np.ndarray) -> list[dolfinx.fem.Function]:
