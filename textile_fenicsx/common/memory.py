@@ -60,8 +60,16 @@ FLOW_BYTES_PER_DOF = 24e3
 FLOW_REFERENCE_DOFS = 1.24e5
 
 
-def flow_bytes(dofs: int) -> float:
-    """The flow cell problem's estimated peak [bytes] for `dofs` unknowns (FLOW_BYTES_PER_DOF)."""
+# Its iterative solve (the matrix, its reduction, the AMG hierarchies and 200 Krylov vectors) grows
+# as the unknowns: FLOW_ITERATIVE_BYTES_PER_DOF measured below
+FLOW_ITERATIVE_BYTES_PER_DOF = 4e3
+
+
+def flow_bytes(dofs: int, direct: bool = True) -> float:
+    """The flow cell problem's estimated peak [bytes] for `dofs` unknowns, by a direct solve
+    (FLOW_BYTES_PER_DOF) or an iterative one (FLOW_ITERATIVE_BYTES_PER_DOF)."""
+    if not direct:
+        return FLOW_ITERATIVE_BYTES_PER_DOF * dofs
     return FLOW_BYTES_PER_DOF * dofs * max(1.0, dofs / FLOW_REFERENCE_DOFS) ** (1 / 3)
 
 

@@ -3,7 +3,7 @@ y and z) on a volume mesh with its fields, K_ij = mu <u_i> for the gradient alon
 
     result = permeability(fields, PermeabilityOptions(yarns="gebart", fibre_radius=0.0035))
     result.K          # (3, 3) [mm^2];  result.K_m2 [m^2]
-    result.write(folder, comm)         # folder/permeability.json
+    result.write(folder, comm)         # folder/permeability.json, flow.xdmf (+.h5), flow.vtu, flow.png
 
 The yarns are Brinkman media whose tensor follows Gebart's laws at each element's fibre fraction and
 fibre direction (gebart.py), an isotropic permeability given in m^2, or solid (impermeable: no-slip
@@ -24,9 +24,9 @@ from mpi4py import MPI
 
 import dolfinx
 from textile_fenicsx.common.errors import TextileError
-from textile_fenicsx.common.files import atomic_path, naming
+from textile_fenicsx.common.files import atomic_path, staged_folder
 from textile_fenicsx.flow import gebart
-from textile_fenicsx.flow.problem import FlowCellProblem
+from textile_fenicsx.flow.problem import DIRECT, ITERATIVE, FlowCellProblem
 from textile_fenicsx.homogenisation.periodic import Box, bounding_box
 from textile_fenicsx.volume.files import VolumeFields
 
@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 # fibres are 5-12 um in radius. Gebart's K scales with r^2: a run that uses it says so.
 DEFAULT_FIBRE_RADIUS = 0.0035
 MM2_TO_M2 = 1e-6
+SOLVERS = {"auto": None, "direct": DIRECT, "iterative": ITERATIVE}
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,9 @@ class PermeabilityOptions:
     fibre_radius [mm] for Gebart (None: DEFAULT_FIBRE_RADIUS, with a warning); degree: the
     velocity's (the pressure's is one less; Taylor-Hood); mu: the fluid's viscosity [Pa s] (K does
     not depend on it); box: the periodic cell (None: the mesh's bounding box); memory_limit [GB]:
-    refuse a mesh whose direct solve would need more (None: the memory available)."""
+    refuse a mesh whose solve would need more (None: the memory available); solver: "direct" (MUMPS'
+    LU), "iterative" (FGMRES, block preconditioner: problem.ITERATIVE) or "auto" (direct for small
+    cells where it fits, problem.choose_solver)."""
 
     yarns: str | float = "gebart"
     fibre_radius: float | None = None
@@ -55,6 +58,7 @@ class PermeabilityOptions:
     mu: float = 1.0
     box: Box | None = None
     memory_limit: float | None = None
+    solver: str = "auto"
 
     def __post_init__(self):
         if isinstance(self.yarns, str):
@@ -65,6 +69,8 @@ class PermeabilityOptions:
             raise TextileError(f"yarn permeability must be a positive number of m^2, not {self.yarns!r}")
         if self.fibre_radius is not None and not (np.isfinite(self.fibre_radius) and 0 < self.fibre_radius < 1.0):
             raise TextileError(f"fibre radius must be a positive length under 1 mm, not {self.fibre_radius!r}")
+        if self.solver not in SOLVERS:
+            raise TextileError(f"the flow solver must be one of {', '.join(SOLVERS)}, not {self.solver!r}")
         if self.degree != 2:
             raise TextileError(f"the flow problem is Taylor-Hood of degree 2 (velocity) and 1 (pressure), not "
                                f"{self.degree!r}")
@@ -73,7 +79,9 @@ class PermeabilityOptions:
 @dataclass
 class Permeability:
     """K (3 x 3) [mm^2]; principal values [mm^2] and directions (columns); vf: the cell's fibre
-    volume fraction; porosity: the pores' volume fraction; dofs, seconds, options, checks."""
+    volume fraction; porosity: the pores' volume fraction; dofs, seconds, options, checks;
+    velocities: the three load cases' solutions (mixed velocity-pressure Functions), mu: the
+    viscosity they were solved with [Pa s]."""
 
     K: np.ndarray
     vf: float
@@ -82,6 +90,7 @@ class Permeability:
     seconds: dict
     options: dict
     velocities: list = field(default_factory=list, repr=False)
+    mu: float = 1.0
 
     @property
     def K_m2(self) -> np.ndarray:
@@ -115,14 +124,20 @@ class Permeability:
                               "fluid's viscosity"}
 
     def write(self, folder: str | Path, comm: MPI.Comm = MPI.COMM_WORLD) -> Path:
-        """folder/permeability.json (the folder created if missing; written whole, by rank 0)."""
+        """folder/permeability.json and, with the velocities, the flow's files (flow/files.py:
+        flow.xdmf + .h5, flow.vtu, flow.png); they appear together once all are written, or none
+        does (staged_folder; other files in the folder are kept; the folder created if missing;
+        collective over comm, the velocities' communicator). Returns the path of permeability.json."""
+        from textile_fenicsx.flow.files import FILES, write_flow
+
         folder = Path(folder)
-        if comm.rank == 0:
-            with naming(folder):
-                folder.mkdir(parents=True, exist_ok=True)
-            with atomic_path(folder / "permeability.json") as tmp:
-                tmp.write_text(json.dumps(self.document(), indent=1))
-        comm.barrier()
+        with staged_folder(folder, comm, remove=FILES) as tmp:
+            if comm.rank == 0:
+                with atomic_path(tmp / "permeability.json") as path:
+                    path.write_text(json.dumps(self.document(), indent=1))
+            if self.velocities:
+                write_flow(self.velocities, tmp, self.mu, self.K)
+        comm.barrier()  # rank 0 has moved them into the folder: every rank may read them
         return folder / "permeability.json"
 
 
@@ -178,22 +193,34 @@ def permeability(fields: VolumeFields, options: PermeabilityOptions | None = Non
     vf = comm.allreduce(float(np.dot(vf_local, volumes[:owned])), op=MPI.SUM) / box.volume
     porosity = 1.0 - comm.allreduce(float(volumes[:owned][yarn[:owned]].sum()), op=MPI.SUM) / box.volume
     seconds: dict = {"fields": time.perf_counter() - t0}
-    problem = FlowCellProblem(K_inv, box, options.degree, options.mu, solid, memory_limit=options.memory_limit)
+    problem = FlowCellProblem(K_inv, box, options.degree, options.mu, solid, SOLVERS[options.solver],
+                              memory_limit=options.memory_limit)
     try:
-        seconds["assembly"], seconds["factorisation"] = problem.assembly_seconds, problem.setup_seconds
+        seconds["assembly"], seconds["solver_setup"] = problem.assembly_seconds, problem.setup_seconds
         t1 = time.perf_counter()
         flows = problem.solve(np.eye(3))
         K = options.mu * np.array([problem.mean_velocity(w) for w in flows]).T
+        closed = ~problem.percolates
+        if np.any(closed):  # no path across the cell: no flow along it, whatever the solve's round-off
+            K[closed, :], K[:, closed] = 0.0, 0.0
+            if comm.rank == 0:
+                log.warning("the pores do not percolate along %s with impermeable yarns: K = 0 there",
+                            ", ".join("xyz"[i] for i in np.flatnonzero(closed)))
         seconds["solves"] = time.perf_counter() - t1
         dofs = problem.dofs
+        solver = ("FGMRES, block preconditioner (Schur, upper): BoomerAMG on the velocity, selfp + BoomerAMG on "
+                  f"the pressure; rtol {ITERATIVE['ksp_rtol']:g}" if problem.iterative else
+                  "MUMPS LU (direct), one factorisation for the three load cases")
+        iterations = problem.iterations
     finally:
         problem.destroy()
     seconds["total"] = time.perf_counter() - t0
     document = {"yarns": options.yarns if isinstance(options.yarns, str) else float(options.yarns),
                 "fibre_radius_mm": options.fibre_radius or DEFAULT_FIBRE_RADIUS, "degree": options.degree,
                 "elements": f"Taylor-Hood: {mesh.topology.cell_name()} P{options.degree}-P{options.degree - 1}",
-                "solver": "MUMPS LU (direct), one factorisation for the three load cases"}
-    return Permeability(K, vf, porosity, dofs, seconds, document, flows)
+                "solver": solver, "iterations": iterations,
+                "percolates": {axis: bool(flag) for axis, flag in zip("xyz", problem.percolates)}}
+    return Permeability(K, vf, porosity, dofs, seconds, document, flows, mu=options.mu)
 
 
 def _cell_volumes(mesh: dolfinx.mesh.Mesh) -> np.ndarray:

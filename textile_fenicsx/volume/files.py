@@ -5,10 +5,10 @@
 - `write_volume`: volume.xdmf + volume.h5 (DOLFINx's own XDMF: the mesh, the cell tags "phase" and
   the DG0 fields "direction" and "yarn_vf"; `read_volume` reads it back on any number of ranks),
   volume.msh (gmsh 4.1 by gmsh: a volume entity and a physical group per phase, "matrix" = 1 and
-  the yarns 2, 3, ... by name), volume.vtu
-  (ParaView: phase, direction, yarn_vf as cell data), volume.inp (Abaqus: an element set per yarn
-  and for the matrix, *Orientation by a distribution per element: local axis 1 the fibre direction)
-  and mesh_report.json.
+  the yarns 2, 3, ... by name), volume.vtu (ParaView: phase, direction, yarn_vf as cell data;
+  written by `save_vtu`, which writes the flow stage's flow.vtu too), volume.inp (Abaqus: an
+  element set per yarn and for the matrix, *Orientation by a distribution per element: local axis
+  1 the fibre direction) and mesh_report.json.
 """
 
 from __future__ import annotations
@@ -171,10 +171,17 @@ def report_document(vm: VolumeMesh) -> dict:
             "units": "mm, mm^3"}
 
 
-def _meshio_mesh(vm: VolumeMesh, cell_data: dict[str, list[np.ndarray]]) -> Any:
+def save_vtu(points: np.ndarray, cells: np.ndarray, path: Path, point_data: dict[str, np.ndarray] | None = None,
+             cell_data: dict[str, np.ndarray] | None = None, kind: str | None = None) -> None:
+    """A .vtu for ParaView, written by meshio: one kind of cell (meshio's name, e.g. "hexahedron27";
+    by default a tetra for 4 nodes, a hexahedron for 8), its nodes in VTK's order, data by name at
+    the points (N, ...) and at the cells (M, ...)."""
     import meshio
 
-    return meshio.Mesh(vm.points, [(_CELL[vm.cells.shape[1]][0], vm.cells)], cell_data=cell_data)
+    mesh = meshio.Mesh(points, [(kind or _CELL[cells.shape[1]][0], cells)], point_data=point_data or {},
+                       cell_data={name: [values] for name, values in (cell_data or {}).items()})
+    with naming(path):
+        mesh.write(path, binary=True)
 
 
 # gmsh's element types of the volume meshes' cells (its node order is VTK's and meshio's for both)
@@ -217,10 +224,8 @@ def write_msh(vm: VolumeMesh, path: Path) -> None:
 
 def write_vtu(vm: VolumeMesh, path: Path) -> None:
     """VTU for ParaView: cell data phase, direction, yarn_vf."""
-    mesh = _meshio_mesh(vm, {"phase": [vm.phase.astype(np.int32)], "direction": [vm.direction],
-                             "yarn_vf": [vm.yarn_vf]})
-    with naming(path):
-        mesh.write(path, binary=True)
+    save_vtu(vm.points, vm.cells, path, cell_data={"phase": vm.phase.astype(np.int32), "direction": vm.direction,
+                                                    "yarn_vf": vm.yarn_vf})
 
 
 def _second_axis(a: np.ndarray) -> np.ndarray:
