@@ -396,7 +396,8 @@ def test_fields_open_in_meshio_and_pyvista(satin_run, mpi_tmp_path):
     ("coupon_edges", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_REPEATS": "2"}),
     ("homogenise_satin", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_KINDS": "voxel",
                           "TEXTILE_FENICSX_VOXEL": "0.4", "TEXTILE_FENICSX_DEGREE": "1"}),
-    ("compaction_satin", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_TARGETS": "0.45 0.5"}),
+    ("compaction_satin", {"TEXTILE_FENICSX_SEED": "1.0", "TEXTILE_FENICSX_TARGETS": "0.45 0.5",
+                          "TEXTILE_FENICSX_VOXEL": "0.7", "TEXTILE_FENICSX_LAYERS": "2"}),  # K's voxels: 34 s
 ])
 @pytest.mark.slow  # 170 s of the serial pass (--durations, 2026-12-07): the slow tier
 def test_demos_run_on_coarse_seeds(demo, env, tmp_path):

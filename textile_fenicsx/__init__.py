@@ -21,6 +21,7 @@ from textile_fenicsx.api import (  # noqa: E402
     build,
     homogenise,
     permeability,
+    permeability_curve,
     read,
     show_progress,
     solve,
@@ -28,4 +29,5 @@ from textile_fenicsx.api import (  # noqa: E402
 )
 from textile_fenicsx.version import __version__  # noqa: E402
 
-__all__ = ["__version__", "build", "homogenise", "permeability", "read", "show_progress", "solve", "volume_mesh"]
+__all__ = ["__version__", "build", "homogenise", "permeability", "permeability_curve", "read", "show_progress", "solve",
+           "volume_mesh"]

@@ -8,6 +8,7 @@
     cell = tfx.volume_mesh(run.corrected, kind="voxel", size=0.2)   # the periodic volume mesh
     result = tfx.homogenise(cell, fibre="e-glass", matrix="epoxy")  # C, S, constants, K
     cell.write("out/volume"), result.write("out/volume")
+    k = tfx.permeability(cell, fibre_radius=0.0035)                   # Stokes-Brinkman: K [mm^2], K_m2
 
 Every call is collective under MPI (run the script with mpirun); progress goes to the
 `textile_fenicsx` logger (`tfx.show_progress()` prints it from rank 0).
@@ -21,12 +22,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from textile_fenicsx.flow.effective import Permeability
     from textile_fenicsx.homogenisation import Homogenised
     from textile_fenicsx.model.textile import Textile
     from textile_fenicsx.pipeline.stages import Run
     from textile_fenicsx.volume.stage import CellMesh
 
-__all__ = ["build", "homogenise", "read", "show_progress", "solve", "volume_mesh"]
+__all__ = ["build", "homogenise", "permeability", "permeability_curve", "read", "show_progress", "solve",
+           "volume_mesh"]
 
 
 def read(path) -> Textile:
@@ -105,7 +108,8 @@ def permeability(volume, yarns="gebart", fibre_radius=None, comm=None, **options
     volume.xdmf it wrote): three periodic Stokes-Brinkman cell problems. yarns: "gebart" (Gebart's
     laws at each element's fibre fraction and direction, with the fibre radius `fibre_radius` [mm]),
     "impermeable" or a permeability [m^2]. Other PermeabilityOptions by name. Returns a
-    Permeability: `.K` [mm^2], `.K_m2`, `.summary()`, `.write(folder)` (permeability.json)."""
+    Permeability: `.K` [mm^2], `.K_m2`, `.summary()`, `.write(folder)` (permeability.json, and
+    the flow's flow.xdmf, flow.vtu, flow.png)."""
     from mpi4py import MPI
 
     from textile_fenicsx.flow.effective import PermeabilityOptions
@@ -116,6 +120,47 @@ def permeability(volume, yarns="gebart", fibre_radius=None, comm=None, **options
     if fields is None:
         fields = read_volume(volume, comm or MPI.COMM_WORLD)
     return _permeability(fields, PermeabilityOptions(yarns=yarns, fibre_radius=fibre_radius, **options))
+
+
+def permeability_curve(run: Run, yarns="gebart", fibre_radius=None, size: float | None = None,
+                       layers: int | None = None, comm=None, last: Permeability | None = None,
+                       memory_limit: float | None = None) -> list[Permeability]:
+    """The permeability at each point of a run's compaction curve (a run solved with
+    `compaction=CompactionTarget(..., step_models=True)`): each point's corrected model meshed in
+    voxels of `size` [mm] in plan (default 0.2) and `layers` through its platens' cavity (the relaxed
+    fabric: its yarns' own extent), the same grid at every point (default: the layers `size` gives
+    the last point, the thinnest), then the three flow cell problems (`permeability`; `yarns` and
+    `fibre_radius` as there). `last`: the last point's, where it is known already (its voxel mesh of
+    that size). Fills `run.compaction.K_m2` [m^2]; returns one Permeability per point, in order."""
+    import logging
+
+    from mpi4py import MPI
+
+    from textile_fenicsx.common.errors import TextileError
+    from textile_fenicsx.volume.box import DEFAULT_SIZE, cell_box
+    from textile_fenicsx.volume.voxel import voxel_counts
+
+    if run.compaction is None or run.step_models is None:
+        raise TextileError("the permeability along a compaction curve needs a run pressed with "
+                           "CompactionTarget(step_models=True)")
+    comm = comm or MPI.COMM_WORLD
+    log = logging.getLogger("textile_fenicsx.api")
+    cavities = [None if mould is None else (mould.bottom, mould.top) for _, mould in run.step_models]
+    if layers is None:
+        box = cell_box(run.step_models[-1][0], cavities[-1])
+        layers = voxel_counts(box, DEFAULT_SIZE["voxel"] if size is None else size)[2]
+    results = []
+    for i, ((model, _), z_range) in enumerate(zip(run.step_models, cavities)):
+        if last is not None and i == len(run.step_models) - 1:
+            result = last
+        else:
+            cell = volume_mesh(model, "voxel", size, comm, z_range=z_range, layers=layers, memory_limit=memory_limit)
+            result = permeability(cell, yarns, fibre_radius, comm, memory_limit=memory_limit)
+        results.append(result)
+        log.info("compaction point %d of %d: Vf %.3f (the voxels' %.3f): %s", i + 1, len(run.step_models),
+                 run.compaction.vf[i], result.vf, result.summary())
+    run.compaction.K_m2 = [r.K_m2.tolist() for r in results]
+    return results
 
 
 def show_progress(level: int = logging.INFO, stream=None) -> None:

@@ -181,6 +181,15 @@ def _solve_command(subparsers: Subparsers) -> None:
                    help="then mesh the corrected model's periodic cell with volume elements (voxel or tet: the files "
                    "of volume-mesh, in DIR)")
     volume_commands.add_volume_options(p, prefix="volume-")
+    p.add_argument("--permeability", action="store_true",
+                   help="then the permeability tensor of that volume mesh (the permeability command's flow cell "
+                   "problems; DIR/permeability.json); with --compaction also at each point of the curve, on voxel "
+                   "meshes of --volume-size and --volume-layers (compaction.json: K_m2; compaction.png: K against Vf)")
+    p.add_argument("--yarn-permeability", type=_yarn_permeability, metavar="gebart|impermeable|K",
+                   help="with --permeability: the yarns' (as the permeability command's; default gebart)")
+    p.add_argument("--fibre-radius", type=float, metavar="MM",
+                   help="with --permeability: the fibres' radius for Gebart's laws [mm] (default 0.0035, with a "
+                   "warning)")
     p.add_argument("--min-gap", type=float, default=0.0, metavar="G",
                    help="exact method: keep yarns in contact (and a mould's platens) at least G mm apart, their "
                    "sections unchanged (default 0: they touch); a tet mesh needs a gap (--volume-mesh tet sets "
@@ -275,8 +284,8 @@ def _permeability_command(subparsers: Subparsers) -> None:
     p = subparsers.add_parser("permeability", help="permeability tensor of a meshed periodic cell (Stokes-Brinkman)",
                               description=volume_commands.PERMEABILITY_DESCRIPTION)
     p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder for permeability.json (created if "
-                   "missing)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder for permeability.json and the flow's "
+                   "files (created if missing)")
     p.add_argument("--yarn-permeability", type=_yarn_permeability, default="gebart", metavar="gebart|impermeable|K",
                    help="the yarns: Gebart's laws at each element's fibre fraction and direction (default), solid "
                    "(impermeable: no-slip on their surfaces), or an isotropic permeability K in m^2")

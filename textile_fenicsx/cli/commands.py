@@ -187,7 +187,8 @@ def _compaction(args) -> dict:
     if thickness is not None and args.vf is not None:
         raise TextileError("--compaction takes one target: --mould T or --vf V, not both")
     return {"mould": None, "compaction": CompactionTarget(args.compaction, thickness, args.vf, args.max_packing,
-                                                          args.compaction_steps, args.spreading)}
+                                                          args.compaction_steps, args.spreading,
+                                                          step_models=args.permeability)}
 
 
 def solve(args) -> int:
@@ -209,6 +210,7 @@ def solve(args) -> int:
         correction=CorrectionOptions(), remesh=args.remesh, **_compaction(args))
     _check_repeat(args)
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
+    flow = volume_commands.flow_options(args, volume)  # its permeability, or None
     t = time.perf_counter()
     textile = _repeated(_stacked(with_yarn_vf(load_input(args.input), args.yarn_vf), args), args, settings.mesh,
                         comm.size, settings.solver.bytes_per_dof)
@@ -217,7 +219,8 @@ def solve(args) -> int:
     settings, volume = volume_commands.with_gap(settings, textile, volume, args.min_gap)
     model_time = time.perf_counter() - t
     inputs = [] if _named_weave(args.input) else [args.input]
-    names = RESULT_NAMES + FAILED_NAMES + (volume_commands.FILES if volume else ())
+    names = RESULT_NAMES + FAILED_NAMES + (volume_commands.FILES if volume else ()) + \
+        (volume_commands.PERMEABILITY_FILES if flow else ())
     claim = claim_output(args.out, inputs=inputs, names=names, force=args.force, comm=comm)
     with claim if args.out else nullcontext(), _painter(args, comm, textile) as painter:
         result = run(textile, settings, comm)
@@ -241,10 +244,12 @@ def solve(args) -> int:
                 print((out / "metrics.json").read_text() if args.out else json.dumps({**summary, "verdict": verdict},
                                                                                     indent=1))
         if verdict["passed"] and volume is not None:
-            volume_commands.mesh_corrected(result, volume, args.out)
+            cell = volume_commands.mesh_corrected(result, volume, args.out)
+            if flow is not None:
+                volume_commands.permeability_corrected(result, cell, volume, flow, args.out)
     if not verdict["passed"]:
         kept = f"; the outputs are kept in {args.out}/ (rejected.tg3, FAILED)" if args.out else ""
-        skipped = "; no volume mesh" if volume is not None else ""
+        skipped = ("; no volume mesh" + (" nor permeability" if flow else "")) if volume is not None else ""
         messages = [f["message"] for f in verdict["failures"]]
         if args.method == "exact" and any(f["check"].startswith("overlap") for f in verdict["failures"]) and \
                 not any("give it room" in m for m in messages):

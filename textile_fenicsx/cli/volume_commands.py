@@ -1,5 +1,5 @@
-"""The commands of the volume stage: `volume-mesh` (and `solve --volume-mesh`), `homogenise`; their
-arguments are in arguments.py."""
+"""The commands of the volume stage: `volume-mesh` (and `solve --volume-mesh`), `homogenise`,
+`permeability` (and `solve --permeability`); their arguments are in arguments.py."""
 
 from __future__ import annotations
 
@@ -12,12 +12,15 @@ from textile_fenicsx.common.errors import TextileError
 from textile_fenicsx.common.files import claim_output
 
 if TYPE_CHECKING:
+    from textile_fenicsx.flow.effective import PermeabilityOptions
     from textile_fenicsx.model.textile import Textile
     from textile_fenicsx.pipeline.stages import Run, Settings
     from textile_fenicsx.volume.stage import VolumeOptions
 
 # what a volume mesh writes (volume_files.FILES, named here without importing DOLFINx)
 FILES = ("volume.xdmf", "volume.h5", "volume.msh", "volume.vtu", "volume.inp", "mesh_report.json")
+# what a permeability writes (Permeability.write: permeability.json and flow/files.py's FILES)
+PERMEABILITY_FILES = ("permeability.json", "flow.xdmf", "flow.h5", "flow.vtu", "flow.png")
 
 VOLUME_DESCRIPTION = (
     "Mesh the periodic cell of a model (a corrected one, or TexGen's idealised one) as volume elements, "
@@ -34,6 +37,8 @@ def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
     """The volume mesh's options (on `volume-mesh`, and on `solve` with the prefix 'volume-')."""
     p.add_argument(f"--{prefix}size", type=float, metavar="H",
                    help="element size [mm] (default 0.2 for voxel, 0.35 for tet)")
+    p.add_argument(f"--{prefix}layers", type=int, metavar="N",
+                   help="voxel: N voxels through the thickness, H in plan (default: the thickness over H, rounded)")
     p.add_argument("--yarn-vf", type=float, metavar="V",
                    help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
                    "(on solve also the compaction law's relaxed fraction and the metrics' Vf; default: from the "
@@ -47,13 +52,14 @@ def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
                        "thinnest yarn's height; the model must hold 0.75 G: solve --min-gap G)")
 
 
-def options_from(args: argparse.Namespace, kind: str, size: float) -> VolumeOptions:
+def options_from(args: argparse.Namespace, kind: str, size: float, layers: int | None = None) -> VolumeOptions:
     """VolumeOptions from the parsed arguments (checked before any work)."""
     from textile_fenicsx.volume.stage import VolumeOptions
 
     z_range = getattr(args, "z_range", None)
     return VolumeOptions(kind=kind, size=size, yarn_vf=args.yarn_vf, z_range=tuple(z_range) if z_range else None,
-                         gap=getattr(args, "gap", None), memory_limit=getattr(args, "memory_limit", None))
+                         gap=getattr(args, "gap", None), memory_limit=getattr(args, "memory_limit", None),
+                         layers=layers)
 
 
 def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
@@ -62,7 +68,23 @@ def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
         return None
     if not args.out:
         raise TextileError("--volume-mesh needs --out DIR (the volume mesh's files go there)")
-    return options_from(args, args.volume_mesh, args.volume_size)
+    return options_from(args, args.volume_mesh, args.volume_size, args.volume_layers)
+
+
+def flow_options(args: argparse.Namespace, volume: VolumeOptions | None) -> PermeabilityOptions | None:
+    """`solve --permeability`'s options (checked before the solve), or None."""
+    if not args.permeability:
+        for flag, value in (("--yarn-permeability", args.yarn_permeability), ("--fibre-radius", args.fibre_radius)):
+            if value is not None:
+                raise TextileError(f"{flag} needs --permeability (with --volume-mesh voxel|tet)")
+        return None
+    if volume is None:
+        raise TextileError("--permeability needs --volume-mesh voxel|tet: the permeability is that of the corrected "
+                           "model's volume mesh")
+    from textile_fenicsx.flow.effective import PermeabilityOptions
+
+    return PermeabilityOptions(args.yarn_permeability or "gebart", args.fibre_radius,
+                               memory_limit=getattr(args, "memory_limit", None))
 
 
 def with_gap(settings: Settings, textile: Textile, volume: VolumeOptions | None,
@@ -93,6 +115,36 @@ def mesh_corrected(run: Run, options: VolumeOptions, out: str) -> Any:
     return cell
 
 
+def permeability_corrected(run: Run, cell: Any, volume: VolumeOptions, flow: PermeabilityOptions, out: str) -> None:
+    """`solve --permeability`: the permeability of the corrected model's volume mesh `cell`, into
+    out/permeability.json; where the fabric was pressed (CompactionTarget.step_models) also at each
+    point of the compaction curve, on voxel meshes of the volume mesh's size and layers (the last
+    point's is the mesh's own where it is voxels), into out/compaction.json (K_m2) and compaction.png."""
+    from textile_fenicsx.api import permeability_curve
+    from textile_fenicsx.flow.effective import permeability
+    from textile_fenicsx.pipeline.outputs import write_compaction
+
+    comm = run.comm
+    result = permeability(cell.fields, flow)
+    result.write(out, comm)
+    if comm.rank == 0:
+        print(result.summary())
+        print(Path(out) / "permeability.json")
+    if run.step_models is None or run.compaction is None:
+        return
+    voxels = volume.kind == "voxel"
+    curve = permeability_curve(run, flow.yarns, flow.fibre_radius, size=volume.size, layers=volume.layers, comm=comm,
+                               last=result if voxels else None, memory_limit=flow.memory_limit)
+    if comm.rank == 0:
+        write_compaction(run, out)
+        first, last = curve[0].K_m2, curve[-1].K_m2
+        vf = run.compaction.vf
+        print(f"permeability along the compaction curve ({len(curve)} points, voxels): Vf {vf[0]:.3f} -> "
+              f"{vf[-1]:.3f}, Kxx {first[0, 0]:.4g} -> {last[0, 0]:.4g}, Kyy {first[1, 1]:.4g} -> {last[1, 1]:.4g}, "
+              f"Kzz {first[2, 2]:.4g} -> {last[2, 2]:.4g} m^2 (compaction.json: K_m2)")
+    comm.barrier()
+
+
 def summary_line(report: dict) -> str:
     """One line on a volume mesh: kind, elements, Vf, the overlap and the worst yarn volume."""
     errors = [abs(y["relative_error"]) for y in report["yarns"] if y["relative_error"] is not None]
@@ -112,7 +164,7 @@ def volume_mesh(args: argparse.Namespace) -> int:
     from textile_fenicsx.volume.stage import mesh_cell
 
     comm = MPI.COMM_WORLD
-    options = options_from(args, args.kind, args.size)
+    options = options_from(args, args.kind, args.size, args.layers)
     textile = load_model(args.model)
     with claim_output(args.out, inputs=[args.model], names=FILES, force=args.force, comm=comm):
         cell = mesh_cell(textile, options, comm)
@@ -138,8 +190,11 @@ PERMEABILITY_DESCRIPTION = (
     "The permeability tensor of a meshed periodic cell: three Stokes-Brinkman cell problems (a unit mean "
     "pressure gradient along x, y and z; Stokes in the pores, Brinkman in the yarns with the fluid's viscosity; "
     "Taylor-Hood elements; periodic in x, y and z), K_ij = mu <u_i>. Writes DIR/permeability.json: K in m^2 and "
-    "mm^2, its principal values and directions, the cell's Vf and porosity, dofs, seconds, checks. Gebart's laws "
-    "are an upper bound for random packings; the flow is slow (Stokes).")
+    "mm^2, its principal values and directions, the cell's Vf and porosity, dofs, seconds, checks; the flow of "
+    "each load case, velocity_x [mm/s] and pressure_x [Pa] (its periodic part) etc. for ParaView: DIR/flow.xdmf "
+    "(+.h5; at the vertices, the velocity interpolated into P1) and DIR/flow.vtu (at every node of the P2 velocity, "
+    "quadratic cells); DIR/flow.png, the velocity magnitude on cuts. The files appear together when all are "
+    "written. Gebart's laws are an upper bound for random packings; the flow is slow (Stokes).")
 
 
 def permeability(args: argparse.Namespace) -> int:
@@ -150,7 +205,7 @@ def permeability(args: argparse.Namespace) -> int:
 
     comm = MPI.COMM_WORLD
     PermeabilityOptions(args.yarn_permeability, args.fibre_radius, args.degree)  # refused before any work
-    with claim_output(args.out, inputs=[args.mesh], names=("permeability.json",), force=True, comm=comm):
+    with claim_output(args.out, inputs=[args.mesh], names=PERMEABILITY_FILES, force=True, comm=comm):
         result = run_permeability(args.mesh, args.yarn_permeability, args.fibre_radius, comm, degree=args.degree,
                                   memory_limit=args.memory_limit)
         result.write(args.out, comm)

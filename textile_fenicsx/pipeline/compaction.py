@@ -13,6 +13,7 @@ solve's second solve).
 """
 
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -60,7 +61,10 @@ class CompactionTarget:
     thickness: the platens' final distance [mm], or vf: the fabric's fibre volume fraction at the
     end [-] (one of the two); phi_max: the maximum packing [-]; steps: the platens' steps [-];
     spreading: the width spreading exponent s [-] (spreading.py: a yarn pressed to r of its volume
-    widens by r^(-s) into the room beside it; 0, the default, keeps the widths, 1 the sections' areas)."""
+    widens by r^(-s) into the room beside it; 0, the default, keeps the widths, 1 the sections' areas);
+    step_models: keep the corrected model of every point of the curve (Run.step_models: the volume
+    mesh and permeability of each, api.permeability_curve; each costs a correction, under a second
+    on satin4 at seed 0.5)."""
 
     modulus: float
     thickness: float | None = None
@@ -68,6 +72,7 @@ class CompactionTarget:
     phi_max: float = HEXAGONAL
     steps: int = 4
     spreading: float = 0.0
+    step_models: bool = False
 
     def __post_init__(self):
         check_positive("compaction modulus", self.modulus)
@@ -102,6 +107,7 @@ class CompactionCurve:
     target: float = 0.0
     fibre_volume: float = 0.0
     reason: str | None = None
+    K_m2: list | None = None  # per point the cell's permeability tensor (3 x 3) [m^2], where it was computed
 
     def add(self, thickness: float, pressure: float, densest: float, iterations: int, area: float,
             imbalance: float = 0.0) -> None:
@@ -113,7 +119,11 @@ class CompactionCurve:
         self.iterations.append(iterations)
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The curve's columns (K_m2 only where the permeability was computed)."""
+        d = asdict(self)
+        if d["K_m2"] is None:
+            del d["K_m2"]
+        return d
 
 
 def yarn_fibre_areas(textile: Textile) -> list[float]:
@@ -135,9 +145,12 @@ def _densest(ms: MidSurfaces, law: Compaction, dt: list) -> float:
 
 
 def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: CompactionTarget,
-            phi0: list[float], plate: PlateParameters, options: SolverOptions, loads: dict):
+            phi0: list[float], plate: PlateParameters, options: SolverOptions, loads: dict,
+            on_point: Callable[[Solution, Mould | None], None] | None = None):
     """Press the relaxed fabric (its solution `relaxed`, rigid yarns) to the target. Returns the last
-    solution that converged (its w and dt), its mould, and the curve (collective)."""
+    solution that converged (its w and dt), its mould, and the curve (collective). on_point(solution,
+    mould), where given, is called at each point of the curve as it is added: the relaxed fabric
+    first (mould None), then each step that converged, with its platens (collective)."""
     law = Compaction(target.modulus, tuple(phi0), target.phi_max)
     area = textile.cell.area
     curve = CompactionCurve(fibre_volume=fibre_volume(textile))
@@ -149,6 +162,8 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
         assert target.vf is not None  # CompactionTarget has one of the two
         curve.target = curve.fibre_volume / (area * target.vf)
     curve.add(relaxed_thickness, 0.0, max(phi0), 0, area)
+    if on_point is not None:
+        on_point(relaxed, None)
     least, (x, y) = thinnest_stack(ms, law)
     log.info("compaction: from %.4f mm (Vf %.3f) to %.4f mm (Vf %.3f) in %d steps; packed to %.4g the yarns at "
              "(%.3f, %.3f) mm are %.4f mm thick", relaxed_thickness, curve.vf[0], curve.target,
@@ -206,6 +221,8 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
             curve.add(h, step.pressure, _densest(ms, law, step.dt), step.iterations, area, imbalance)
             log.info("compaction step %d: %.4f mm, Vf %.3f, pressure %.4g MPa, densest yarn %.3f, %d Newton steps",
                      k, h, curve.vf[-1], step.pressure, curve.densest[-1], step.iterations)
+            if on_point is not None:
+                on_point(step, step_mould)
             if imbalance > DUAL_RTOL:
                 packed = curve.densest[-1] >= target.phi_max * (1 - 1e-3)
                 log.warning("compaction step %d: the pressure %.4g MPa is uncertain: the forces settled out of "
@@ -220,13 +237,16 @@ def compact(ms: MidSurfaces, textile: Textile, relaxed: Solution, target: Compac
 
 def plot_curve(curve: CompactionCurve, path, title: str) -> None:
     """compaction.png: the platens' pressure against the fabric's thickness and its fibre volume
-    fraction (matplotlib; rank 0)."""
+    fraction, and where it was computed the cell's permeability against the fibre volume fraction
+    (matplotlib; rank 0)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    panels = 2 if curve.K_m2 is None else 3
+    fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 4), constrained_layout=True)
+    left, right = axes[0], axes[1]
     for ax, x, label in ((left, curve.thickness, "fabric thickness [mm]"),
                          (right, curve.vf, "fibre volume fraction Vf [-]")):
         ax.plot(x, curve.pressure, "o-", color="tab:blue", label="platen pressure (this model)")
@@ -241,6 +261,24 @@ def plot_curve(curve: CompactionCurve, path, title: str) -> None:
     phi.set_ylabel("intra-yarn fibre fraction [-]", color="tab:green")
     lines = right.get_legend_handles_labels(), phi.get_legend_handles_labels()
     right.legend(lines[0][0] + lines[1][0], lines[0][1] + lines[1][1], loc="upper left", fontsize=8)
+    if curve.K_m2 is not None:
+        _plot_permeability(axes[2], curve)
     fig.suptitle(title + ("" if curve.reason is None else " (stopped short)"))
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _plot_permeability(ax, curve: CompactionCurve) -> None:
+    """The diagonal of the cell's permeability against the fibre volume fraction, on a log scale
+    (the points where it was computed)."""
+    known = [(v, np.diag(np.asarray(K, float))) for v, K in zip(curve.vf, curve.K_m2 or []) if K is not None]
+    if known:
+        vf = [v for v, _ in known]
+        diagonal = np.array([d for _, d in known])
+        for i, (label, marker) in enumerate((("Kxx", "o-"), ("Kyy", "s--"), ("Kzz", "^-"))):
+            ax.plot(vf, diagonal[:, i], marker, label=label)
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_xlabel("fibre volume fraction Vf [-]")
+    ax.set_ylabel("cell permeability [m$^2$]")
+    ax.grid(True, which="both", alpha=0.3)

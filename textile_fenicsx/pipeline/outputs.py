@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 import dolfinx
-from textile_fenicsx.common.files import naming, output_lock, staged_folder
+from textile_fenicsx.common.files import atomic_path, naming, output_lock, staged_folder
 from textile_fenicsx.io.config import save_model
 from textile_fenicsx.io.tg3_write import write_tg3
 from textile_fenicsx.version import __version__
@@ -174,10 +174,7 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
             if not passed:
                 _write_text(tmp / "FAILED", "\n".join(f["message"] for f in metrics["verdict"]["failures"]) + "\n")
             if run.compaction is not None:
-                from textile_fenicsx.pipeline.compaction import plot_curve
-
-                _write_text(tmp / "compaction.json", json.dumps(run.compaction.as_dict(), indent=1))
-                plot_curve(run.compaction, tmp / "compaction.png", f"{run.textile.name}: compaction")
+                write_compaction(run, tmp)
         if fields:
             log.info("outputs: mid-surface fields")
             write_fields(run, tmp / "fields")
@@ -196,6 +193,19 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
         if comm.rank == 0:
             _write_text(tmp / "metrics.json", json.dumps(metrics, indent=1))
     return Path(out)
+
+
+def write_compaction(run, folder) -> None:
+    """folder/compaction.json and compaction.png: the run's compaction curve, each file replaced
+    whole (rank 0; also after the run's folder was written, once the curve's permeability is known)."""
+    from textile_fenicsx.pipeline.compaction import plot_curve
+
+    assert run.compaction is not None
+    folder = Path(folder)
+    with atomic_path(folder / "compaction.json") as tmp:
+        tmp.write_text(json.dumps(run.compaction.as_dict(), indent=1))
+    with atomic_path(folder / "compaction.png") as tmp:
+        plot_curve(run.compaction, tmp, f"{run.textile.name}: compaction")
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -79,6 +79,9 @@ class Run:
     legs: bool = False  # binder legs that are not plates (legs.py)
     remeshed: list = field(default_factory=list)  # the runs done before this one: seed, failures, time
     spreading: list | None = None  # per textile yarn its width over the model's, where pressed yarns spread
+    # per point of the compaction curve its corrected model and the platens' Mould (None: open), where
+    # asked (CompactionTarget.step_models)
+    step_models: list[tuple[Textile, Mould | None]] | None = None
     _metrics: dict | None = field(default=None, repr=False)
 
     def __repr__(self) -> str:

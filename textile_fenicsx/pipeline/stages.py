@@ -219,12 +219,20 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
         release_freed_memory()
     times["solve"] = time.perf_counter() - t
     curve, flats, ratio = None, None, None
+    models: list[tuple[Textile, Mould | None]] | None = None
     if solution.converged and settings.compaction is not None:
         begin("compact")
         t = time.perf_counter()
         phi0 = yarn_fibre_fractions(textile)[0]  # each yarn's relaxed fibre fraction
+        models = [] if settings.compaction.step_models else None
+
+        def keep(step: Solution, step_mould: Mould | None) -> None:  # a point's corrected model, as the curve grows
+            assert models is not None
+            step_flats = None if step.dt is None else _flats(ms, step, textile)
+            models.append((_corrected(textile, split, step, settings, step_flats, fibres=True), step_mould))
+
         pressed, pressed_mould, curve = compact(ms, textile, solution, settings.compaction, phi0, settings.plate,
-                                                settings.solver, loads)
+                                                settings.solver, loads, None if models is None else keep)
         if pressed is not None:
             solution, mould = pressed, pressed_mould
             flats, ratio = _flats(ms, solution, textile), _volume_ratio(ms, solution)
@@ -233,13 +241,16 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
     if solution.converged:
         begin("correct")
         t = time.perf_counter()
-        corrected = _corrected(textile, split, solution, settings, flats)
+        if models and flats is not None:  # the last point's model is the pressed fabric's
+            corrected = models[-1][0]
+        else:
+            corrected = _corrected(textile, split, solution, settings, flats)
         times["correct"] = time.perf_counter() - t
     else:
         log.warning("solve: the contact iteration did not converge: %s", solution.reason)
     times["total"] = time.perf_counter() - start
     result = Run(textile, settings, ms, solution, corrected, times, mould=mould if solution.converged else None,
-                 compaction=curve, flats=flats, volume_ratio=ratio, legs=split.any)
+                 compaction=curve, flats=flats, volume_ratio=ratio, legs=split.any, step_models=models)
     if split.any and corrected is not None and settings.compaction is None:
         result = _settled(result, split, loads, begin)
     s = result.summary()
@@ -249,9 +260,11 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
     return result
 
 
-def _corrected(textile: Textile, split, solution: Solution, settings: Settings, flats) -> Textile:
+def _corrected(textile: Textile, split, solution: Solution, settings: Settings, flats,
+               fibres: bool = False) -> Textile:
     """The corrected model of a converged solve (correct.py), its binders' legs fitted into their
-    gaps and their bends opened (leg_fit.py, bend_fit.py)."""
+    gaps and their bends opened (leg_fit.py, bend_fit.py). Where pressed (flats), or asked (fibres:
+    the relaxed point of a compaction curve), its yarns carry the fibres the compaction counts."""
     corrected = corrected_textile(split.textile, solution.w,  # (the model the plates were made from)
                                   settings.correction.station_spacing(settings.mesh.seed),
                                   settings.correction.section_points, split, flats)
@@ -260,7 +273,7 @@ def _corrected(textile: Textile, split, solution: Solution, settings: Settings, 
         gap = settings.solver.min_gap  # the fits keep the gap the solve kept
         corrected = fit_legs(corrected, binders, settings.correction.section_points, gap)
         corrected = open_bends(corrected, binders, settings.correction.section_points, gap)
-    if flats is not None:  # the fibres the compaction counted go with the flattened yarns
+    if flats is not None or fibres:  # the fibres the compaction counted go with the flattened yarns
         corrected = replace(corrected, yarns=[replace(y, fibres=y.fibres or Fibres(area=a)) for y, a in
                                               zip(corrected.yarns, yarn_fibre_areas(textile))])
     return corrected

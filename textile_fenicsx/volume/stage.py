@@ -28,6 +28,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+MAX_LAYERS = 1000  # voxels through the thickness a mesh may be asked for (VolumeOptions.layers)
+
 
 @dataclass(frozen=True)
 class VolumeOptions:
@@ -39,7 +41,8 @@ class VolumeOptions:
     thickness (zmin, zmax) [mm], e.g. a mould's cavity; None: the yarns' own extent (tet: padded by
     half the gap). gap: tet only, the least gap between yarns the mesh is made for [mm]
     (volume.tet: default 5 % of the thinnest yarn's height). memory_limit: largest memory [GB] the
-    mesh may take (default: what the system has available).
+    mesh may take (default: what the system has available). layers: voxel only, the voxels through
+    the thickness (default: the thickness over `size`, rounded).
     """
 
     kind: str = "voxel"
@@ -48,6 +51,7 @@ class VolumeOptions:
     z_range: tuple[float, float] | None = None
     gap: float | None = None
     memory_limit: float | None = None
+    layers: int | None = None
 
     @property
     def element_size(self) -> float:
@@ -64,6 +68,10 @@ class VolumeOptions:
             check_yarn_vf(self.yarn_vf)
         if self.memory_limit is not None:
             limits.check_range("memory limit", self.memory_limit, 1e-6, limits.MAX_MEMORY_GB, " GB")
+        if self.layers is not None:
+            if self.kind != "voxel":
+                raise TextileError("layers through the thickness are a voxel mesh's; a tet mesh takes its size only")
+            limits.check_count("voxel layers", self.layers, 1, MAX_LAYERS)
 
 
 def fibre_fractions(textile: Textile, options: VolumeOptions) -> list[float]:
@@ -93,7 +101,8 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
             if options.kind == "voxel":
                 from textile_fenicsx.volume.voxel import voxel_mesh
 
-                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.element_size, vf)
+                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.element_size, vf,
+                                    options.layers)
             else:
                 result = _tet(textile, options, vf)
         except (TextileError, MeshError) as e:

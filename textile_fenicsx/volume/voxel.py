@@ -28,10 +28,14 @@ MAX_VOXELS = 50_000_000
 COARSE = 0.03  # a yarn volume error above which the size is said to be too coarse (issue 30: 3 %)
 
 
-def voxel_counts(box: Box, size: float) -> tuple[int, int, int]:
-    """Voxels along x, y, z for an element size [mm]: the nearest whole numbers, at least one."""
+def voxel_counts(box: Box, size: float, layers: int | None = None) -> tuple[int, int, int]:
+    """Voxels along x, y, z for an element size [mm]: the nearest whole numbers, at least one; along
+    z `layers` where given (the same grid at every point of a compaction curve, stretched to each
+    thickness)."""
     size = limits.check_length("volume mesh size", size)
     n = np.maximum(np.rint(box.size / size), 1).astype(int)
+    if layers is not None:
+        n[2] = layers
     total = int(np.prod(n.astype(float)))
     if total > MAX_VOXELS:
         raise TextileError(f"volume mesh size {size:g} mm would give {n[0]} x {n[1]} x {n[2]} = {total:.3g} voxels, "
@@ -89,10 +93,11 @@ def classify(textile: Textile, box: Box, counts: tuple[int, int, int]) -> tuple[
     return phase, overlap
 
 
-def voxel_mesh(textile: Textile, box: Box, size: float, yarn_vf: list[float]) -> VolumeMesh:
-    """The voxel mesh of the textile over the box at element size `size` [mm] (module docstring);
-    yarn_vf: each yarn's intra-yarn fibre volume fraction."""
-    counts = voxel_counts(box, size)
+def voxel_mesh(textile: Textile, box: Box, size: float, yarn_vf: list[float], layers: int | None = None) -> VolumeMesh:
+    """The voxel mesh of the textile over the box at element size `size` [mm] (module docstring),
+    `layers` voxels through the thickness where given; yarn_vf: each yarn's intra-yarn fibre volume
+    fraction."""
+    counts = voxel_counts(box, size, layers)
     start = time.perf_counter()
     log.info("voxel mesh: %d x %d x %d = %d voxels of %.3g x %.3g x %.3g mm", *counts, int(np.prod(counts)),
              *(box.size / np.array(counts)))
