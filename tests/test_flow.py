@@ -383,12 +383,15 @@ def test_the_permeability_command_on_a_meshed_cross_ply(tmp_path):
     speed = np.linalg.norm(grid.point_data["velocity_x"], axis=1)
     assert speed.max() > 0 and grid.n_cells == 200  # 10 x 10 x 2 voxels
     assert (tmp_path / "k" / "flow.png").read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
-    r = run("permeability", mesh, "--yarn-permeability", "impermeable", "--out", str(tmp_path / "solid"))
+    r = run("permeability", mesh, "--yarn-permeability", "impermeable", "--solver", "iterative", "--out",
+            str(tmp_path / "solid"))
     assert r.returncode == 0, r.stderr
+    assert " iterations, " in r.stdout  # FGMRES's, in the summary
     solid = np.array(json.loads((tmp_path / "solid" / "permeability.json").read_text())["K_m2"])
     assert np.all(np.diag(solid) < np.diag(K))
     for args, words in ((["--yarn-permeability", "leaky"], "gebart, impermeable or a permeability"),
                         (["--yarn-permeability=-1e-9"], "positive number of m^2"),
+                        (["--solver", "cg"], "invalid choice: 'cg'"),
                         (["--fibre-radius", "0"], "fibre radius must be a positive length"),
                         (["--memory-limit", "0.001"], "need about")):
         r = run("permeability", mesh, *args, "--out", str(tmp_path / "bad"))

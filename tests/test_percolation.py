@@ -62,6 +62,7 @@ def test_a_channel_with_a_closed_pocket(solver):
     for result in (alone, with_pocket):
         assert result.options["percolates"] == {"x": True, "y": False, "z": False}
         assert result.K[0, 0] > 0 and np.count_nonzero(result.K) == 1
+        assert result.checks["positive_definite"]  # on the axes the pores percolate along: x
     # the same to the solve's accuracy: round-off for MUMPS; FGMRES stops at a residual 1e-6 of the
     # load's (problem.ITERATIVE), which moved K by 3e-6 here
     assert with_pocket.K[0, 0] == pytest.approx(alone.K[0, 0], rel=1e-9 if solver == "direct" else 1e-5)

@@ -293,8 +293,10 @@ def _permeability_command(subparsers: Subparsers) -> None:
                    help="the fibres' radius for Gebart's laws [mm] (default 0.0035, with a warning)")
     p.add_argument("--degree", type=int, default=2, choices=[2],
                    help="the velocity's degree (Taylor-Hood: the pressure's is one less)")
+    p.add_argument("--solver", choices=["auto", "direct", "iterative"], default="auto",
+                   help="the linear solve: MUMPS' LU, FGMRES with a block preconditioner (AMG), or auto (default: "
+                   "direct up to 150 000 unknowns where it fits in memory)")
     p.add_argument("--memory-limit", type=float, metavar="GB",
-                   help="refuse a mesh whose direct solve would need more memory than this (default: what is "
-                   "available)")
+                   help="refuse a mesh whose solve would need more memory than this (default: what is available)")
     p.set_defaults(run=volume_commands.permeability)
 

@@ -204,10 +204,10 @@ def permeability(args: argparse.Namespace) -> int:
     from textile_fenicsx.flow.effective import PermeabilityOptions
 
     comm = MPI.COMM_WORLD
-    PermeabilityOptions(args.yarn_permeability, args.fibre_radius, args.degree)  # refused before any work
+    PermeabilityOptions(args.yarn_permeability, args.fibre_radius, args.degree, solver=args.solver)  # refused early
     with claim_output(args.out, inputs=[args.mesh], names=PERMEABILITY_FILES, force=True, comm=comm):
         result = run_permeability(args.mesh, args.yarn_permeability, args.fibre_radius, comm, degree=args.degree,
-                                  memory_limit=args.memory_limit)
+                                  memory_limit=args.memory_limit, solver=args.solver)
         result.write(args.out, comm)
     if comm.rank == 0:
         print(result.summary())

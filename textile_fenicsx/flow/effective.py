@@ -103,15 +103,22 @@ class Permeability:
 
     @property
     def checks(self) -> dict:
+        """asymmetry: max |K - K^T| / max |K|; positive_definite: K restricted to the axes the pores
+        percolate along (options["percolates"]; K is 0 along the others)."""
         scale = float(np.abs(self.K).max()) or 1.0
+        flags = self.options.get("percolates", {})
+        axes = [i for i, axis in enumerate("xyz") if flags.get(axis, True)]
+        open_block = 0.5 * (self.K + self.K.T)[np.ix_(axes, axes)]
         return {"asymmetry": float(np.abs(self.K - self.K.T).max() / scale),
-                "positive_definite": bool(self.principal[0][-1] > 0)}
+                "positive_definite": bool(np.all(np.linalg.eigvalsh(open_block) > 0)) if len(open_block) else False}
 
     def summary(self) -> str:
         values = self.principal[0] * MM2_TO_M2
+        iterations = self.options.get("iterations") or []
+        solve = f", {'/'.join(map(str, iterations))} iterations" if any(n > 1 for n in iterations) else ""
         return (f"Kxx {self.K_m2[0, 0]:.4g} Kyy {self.K_m2[1, 1]:.4g} Kzz {self.K_m2[2, 2]:.4g} m^2 "
                 f"(principal {values[0]:.4g}, {values[1]:.4g}, {values[2]:.4g}), Vf {self.vf:.3f}, "
-                f"porosity {self.porosity:.3f}; {self.dofs} dofs, {self.seconds['total']:.1f} s")
+                f"porosity {self.porosity:.3f}; {self.dofs} dofs{solve}, {self.seconds['total']:.1f} s")
 
     def document(self) -> dict:
         values, vectors = self.principal
