@@ -12,7 +12,7 @@ SLOW     := (slow or convergence) and not sweep
 DURATIONS := --durations=25
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi test-all test-slow test-slow-serial test-slow-mpi lint docker-test bench bench-outer bench-volume sweep sweep-volume sweep-compaction clean
+.PHONY: help env demo demos test test-serial test-mpi test-all test-slow test-slow-serial test-slow-mpi lint docker-test bench bench-outer bench-volume bench-flow sweep sweep-volume sweep-compaction clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -29,8 +29,10 @@ help:
 	@echo "                  (QUICK=1: voxel, serial, ~4 min more)"
 	@echo "make bench-outer  CG with yarn-block and multigrid preconditioners on the contact steps' matrices (satin4,"
 	@echo "                  seed 0.25): why the steps use a direct solve (~1 min); table on stdout"
-	@echo "make bench-volume volume-mesh + homogenise of the corrected satin4 (voxel and tet, 1 and 2 ranks): seconds,"
+	@echo "make bench-volume volume-mesh + homogenise + permeability of the corrected satin4 (voxel and tet, 1 and 2 ranks): seconds,"
 	@echo "                  dofs, peak memory; table + $(OUT)/volume_bench.json"
+	@echo "make bench-flow   the flow solver against the yarns' drag: FGMRES iterations and K against MUMPS' on the"
+	@echo "                  corrected satin4's voxels (0.6, 0.3 mm), yarns from 1e-8 m^2 to solid (~10 min)"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
 	@echo "make sweep-compaction  every 2D fabric of the sweep solved, then pressed to Vf 0.5 (K 50 MPa)"
 	@echo "make sweep-volume the volume stage on the same family: voxel of each input, solve --volume-mesh tet,"
@@ -88,6 +90,9 @@ bench-outer:
 
 bench-volume:
 	$(ENV) python3 bench/volume_bench.py --out $(OUT)/volume_bench.json
+
+bench-flow:
+	$(ENV) python3 bench/flow_contrast.py --out $(OUT)/flow_contrast.json
 
 sweep:
 	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json

@@ -1,4 +1,4 @@
-"""The volume stage's bench (make bench-volume): volume-mesh + homogenise of the corrected satin4.
+"""The volume stage's bench (make bench-volume): volume-mesh + homogenise + permeability of the corrected satin4.
 
 The 4-harness satin (reference/models/satin4.tg3) is corrected at seed 0.5 by the default command
 (and, for the tet mesh, with the tet mesher's gap held: `solve --min-gap`), then, as a user runs
@@ -6,6 +6,7 @@ them, each in a fresh process, serially and on 2 ranks:
 
     textile-fenicsx volume-mesh corrected.tg3 --kind KIND --size H --out DIR
     textile-fenicsx homogenise DIR/volume.xdmf --out DIR
+    textile-fenicsx permeability DIR/volume.xdmf --fibre-radius 0.0035 --out DIR/flow
 
 It reports per command the wall time, the peak resident memory of the largest process, the mesh's
 elements, the cell problems' unknowns and CG iterations, and writes output/volume_bench.json:
@@ -67,12 +68,24 @@ def corrected(folder: Path, gap: bool) -> Path:
     return folder / "corrected.tg3"
 
 
-def case(model: Path, kind: str, size: float, ranks: int, folder: Path, degree: int = 2) -> dict:
+def permeability(folder: Path, ranks: int) -> dict:
+    """`permeability` on the volume mesh in folder (Gebart's yarns, carbon's 3.5 um fibres): its wall
+    time, peak memory, unknowns, iterations a load case, solver and K's diagonal [m^2]."""
+    run = timed(["permeability", str(folder / "volume.xdmf"), "--fibre-radius", "0.0035", "--out",
+                 str(folder / "flow")], ranks)
+    doc = json.loads((folder / "flow" / "permeability.json").read_text())
+    return {"seconds": run["seconds"], "cpu_seconds": run["cpu_seconds"], "peak_gb": run["peak_gb"],
+            "dofs": doc["dofs"], "iterations": doc["options"]["iterations"], "solver": doc["options"]["solver"],
+            "stages_s": doc["seconds"], "K_m2": [doc["K_m2"][i][i] for i in range(3)], "vf": doc["vf"]}
+
+
+def case(model: Path, kind: str, size: float, ranks: int, folder: Path, degree: int = 2, flow: bool = True) -> dict:
     mesh = timed(["volume-mesh", str(model), "--kind", kind, "--size", str(size), "--out", str(folder)], ranks)
     homog = timed(["homogenise", str(folder / "volume.xdmf"), "--degree", str(degree), "--out", str(folder)], ranks)
     report = json.loads((folder / "mesh_report.json").read_text())
     stiffness = json.loads((folder / "stiffness.json").read_text())
-    return {"kind": kind, "size": size, "ranks": ranks, "degree": degree, "elements": report["elements"],
+    return {"permeability": permeability(folder, ranks) if flow else None,
+            "kind": kind, "size": size, "ranks": ranks, "degree": degree, "elements": report["elements"],
             "dofs": stiffness["dofs"], "iterations": stiffness["iterations"],
             "mesh_s": mesh["seconds"], "mesh_cpu_s": mesh["cpu_seconds"], "mesh_peak_gb": mesh["peak_gb"],
             "homogenise_s": homog["seconds"], "homogenise_cpu_s": homog["cpu_seconds"],
@@ -96,6 +109,7 @@ def main() -> None:
     parser.add_argument("--sizes", nargs="+", default=[f"{k}={h}" for k, h in DEFAULT_SIZE.items()],
                         metavar="KIND=H[,H...]")
     parser.add_argument("--degree", type=int, default=2, choices=[1, 2])
+    parser.add_argument("--no-permeability", action="store_true", help="leave out the permeability of each mesh")
     parser.add_argument("--out", type=Path, default=REPO / "output" / "volume_bench.json")
     args = parser.parse_args()
     sizes = {k: [float(h) for h in v.split(",")] for k, v in (s.split("=") for s in args.sizes)}
@@ -107,7 +121,8 @@ def main() -> None:
             for size in sizes[kind]:
                 for ranks in args.ranks:
                     print(f"volume bench: {kind} at {size} mm on {ranks} rank(s)", file=sys.stderr, flush=True)
-                    records.append(case(models[kind], kind, size, ranks, tmp / f"{kind}_{size}_{ranks}", args.degree))
+                    records.append(case(models[kind], kind, size, ranks, tmp / f"{kind}_{size}_{ranks}", args.degree,
+                                        not args.no_permeability))
                     save(args.out, records)  # each case as it ends: a later one may fail (memory)
                     r = records[-1]
                     print(f"volume bench: {r['elements']} elements, {r['dofs']['elasticity']} dofs, mesh "
@@ -125,6 +140,18 @@ def main() -> None:
               f"{r['total_s']:.1f} s | {peaks} | {r['constants']['Ex']:.0f} | "
               f"{r['vf']:.3f} |")
     print(changes(records))
+    flows = [r for r in records if r["permeability"]]
+    if flows:
+        print("\npermeability (Stokes-Brinkman, Gebart's yarns, r = 3.5 um): wall seconds (CPU seconds)")
+        print("| kind | size mm | ranks | dofs | solver | iterations (x, y, z) | assembly s | solves s | total | "
+              "peak GB | Kxx m^2 | Kyy m^2 | Kzz m^2 |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for r in flows:
+            f = r["permeability"]
+            print(f"| {r['kind']} | {r['size']:g} | {r['ranks']} | {f['dofs']} | {f['solver'].split(',')[0]} | "
+                  f"{'/'.join(map(str, f['iterations']))} | {f['stages_s']['assembly']:.1f} | "
+                  f"{f['stages_s']['solves']:.1f} | {f['seconds']:.1f} s ({f['cpu_seconds']:.0f}) | "
+                  f"{f['peak_gb']:.2f} | " + " | ".join(f"{k:.3e}" for k in f["K_m2"]) + " |")
 
 
 def changes(records: list[dict], keys: tuple = ("Ex", "Ey", "Ez", "Gxy", "Gxz", "Gyz", "nuxy", "nuxz", "nuyz")) -> str:
