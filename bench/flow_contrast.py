@@ -64,8 +64,8 @@ def main() -> None:
                       f"K within {row['difference']:.1e}", file=sys.stderr, flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
-    print("| voxel mm | dofs | yarns | contrast (h^2 / K_yarn) | FGMRES iterations (x, y, z) | iterative s | direct s | "
-          "max |K_it - K_direct| / max |K| |")
+    print("| voxel mm | dofs | yarns | contrast (h^2 / K_yarn) | FGMRES iterations (x, y, z) | iterative s | "
+          "direct s | max |K_it - K_direct| / max |K| |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         contrast = (f"{(r['size_mm'] * 1e-3) ** 2 / r['yarns']:.0e}" if isinstance(r["yarns"], float) else

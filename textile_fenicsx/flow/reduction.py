@@ -48,17 +48,19 @@ class Reduction:
 
 def _labelled_dofs(W: dolfinx.fem.FunctionSpace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every local dof of the mixed space W (owned, then ghosts): its W index, location and label
-    (0, 1, 2: the velocity's components; 3: the pressure)."""
+    (0, 1, 2: the velocity's components; 3: the pressure). Each sub-space's cell dofs are in the
+    order of a scalar Lagrange space of its degree, whose dof coordinates DOLFINx tabulates
+    (collapsing the sub-spaces instead took 6.5 s on the satin's 0.3 mm Q2 voxels, this 0.03 s)."""
+    mesh = W.mesh
     n = W.dofmap.index_map.size_local + W.dofmap.index_map.num_ghosts
     points, labels = np.zeros((n, 3)), np.full(n, -1, np.int32)
-    for field in (0, 1):
-        V, dofs = W.sub(field).collapse()
-        bs = V.dofmap.index_map_bs
-        x = V.tabulate_dof_coordinates()
-        dofs = np.asarray(dofs).reshape(-1, bs)
-        for c in range(bs):
-            points[dofs[:, c]] = x[: len(dofs)]
-            labels[dofs[:, c]] = 3 * field + c
+    for field, parts in ((0, [W.sub(0).sub(c) for c in range(3)]), (1, [W.sub(1)])):
+        scalar = dolfinx.fem.functionspace(mesh, ("Lagrange", W.sub(field).ufl_element().degree))
+        x, cells = scalar.tabulate_dof_coordinates(), np.asarray(scalar.dofmap.list)
+        for c, part in enumerate(parts):
+            dofs = np.asarray(part.dofmap.list)
+            points[dofs] = x[cells]
+            labels[dofs] = 3 * field + c
     return np.arange(n, dtype=np.int32), points, labels
 
 
