@@ -43,16 +43,20 @@ DIRECT = DIRECT_LU
 # Schur, upper): the velocity block by one V-cycle of hypre's BoomerAMG, the Schur complement
 # S = -B A^-1 B^T by B diag(A)^-1 B^T ("selfp", a discrete Laplacian weighted by the velocity
 # block's diagonal: mu (c / h^2 + k) there, so Darcy's K / mu in the yarns and h^2 / mu in the
-# pores) and one V-cycle of BoomerAMG. HMIS coarsening with extended+i interpolation, strength
-# 0.5 and one level of aggressive coarsening: the three-dimensional settings of hypre's manual.
-# Measured on the corrected satin's voxel cells (2026-12-07; docs/permeability.md): 45-47
-# iterations a load case at 0.6 mm (24 k unknowns), 100-136 at 0.3 mm (124 k), 18 with impermeable
-# yarns; the drag-weighted pressure mass matrix (Cahouet-Chabard's Stokes term, w = 1 / (mu (1 +
-# h^2 k / c))) took 170-200 at 0.6 mm, 151-158 with impermeable yarns: the pores' thin channels,
-# where S is far below the mass matrix. Velocity block by LU instead of AMG: the same iterations.
-_AMG = {"pc_type": "hypre", "pc_hypre_type": "boomeramg", "pc_hypre_boomeramg_coarsen_type": "HMIS",
-        "pc_hypre_boomeramg_interp_type": "ext+i", "pc_hypre_boomeramg_strong_threshold": 0.5,
-        "pc_hypre_boomeramg_agg_nl": 1}
+# pores) and one V-cycle of BoomerAMG. The velocity's AMG takes HMIS coarsening with extended+i
+# interpolation, strength 0.5 and one level of aggressive coarsening (the three-dimensional
+# settings of hypre's manual); the pressure's, BoomerAMG's defaults (Falgout, classical, 0.25):
+# with the velocity's, it stalled where solid yarns hold thousands of pressure dofs (the satin's
+# 0.3 mm voxels: the residual stuck at 0.04 of the load's), and took 20 iterations with these.
+# Measured on the corrected satin's voxel cells (2026-12-07; docs/permeability.md, make
+# bench-flow): the drag-weighted pressure mass matrix (Cahouet-Chabard's Stokes term, w = 1 / (mu
+# (1 + h^2 k / c))) took 150-200 iterations at 0.6 mm where selfp took 16-26: the pores' thin
+# channels, where S is far below the mass matrix. The velocity block by LU instead of AMG took the
+# same iterations. A residual of 1e-6 of the load's moves K by under 1e-6 of its largest entry
+# (1e-8 took 48 iterations where 1e-6 took 19).
+_VELOCITY_AMG = {"pc_type": "hypre", "pc_hypre_type": "boomeramg", "pc_hypre_boomeramg_coarsen_type": "HMIS",
+                 "pc_hypre_boomeramg_interp_type": "ext+i", "pc_hypre_boomeramg_strong_threshold": 0.5,
+                 "pc_hypre_boomeramg_agg_nl": 1}
 ITERATIVE = {
     "ksp_type": "fgmres",
     "ksp_rtol": 1e-6,
@@ -64,9 +68,10 @@ ITERATIVE = {
     "pc_fieldsplit_schur_fact_type": "upper",
     "pc_fieldsplit_schur_precondition": "selfp",
     "fieldsplit_u_ksp_type": "preonly",
-    **{"fieldsplit_u_" + key: value for key, value in _AMG.items()},
+    **{"fieldsplit_u_" + key: value for key, value in _VELOCITY_AMG.items()},
     "fieldsplit_p_ksp_type": "preonly",
-    **{"fieldsplit_p_" + key: value for key, value in _AMG.items()},
+    "fieldsplit_p_pc_type": "hypre",
+    "fieldsplit_p_pc_hypre_type": "boomeramg",
 }
 
 # The direct solve where it is small enough: below this many unknowns it was faster than the

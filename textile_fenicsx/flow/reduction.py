@@ -183,9 +183,14 @@ def reduced(form: dolfinx.fem.Form, reduction: Reduction) -> PETSc.Mat:
     # the held rows of R^T A R are empty (a slave's) or not: give each a diagonal entry (merged in
     # by axpy with a diagonal of the held rows; MPIAIJ's zeroRowsColumns needs the entry, and
     # inserting them one at a time into the assembled matrix took 3 ms each), then make them
-    # the identity's
+    # the identity's, with -1 for the pressure's: the sign of the Schur complement -B A^-1 B^T, so
+    # that its preconditioner (selfp: the pressure rows of the held dofs, minus B diag(A)^-1 B^T) is
+    # definite: with +1, BoomerAMG stalled on it where solid yarns hold thousands of pressure dofs
+    # (the satin's 0.3 mm voxels: the residual stuck at 0.04 of the load's, then diverged)
     diagonal = _diagonal(B, reduction.held)
     B.axpy(1.0, diagonal, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
     diagonal.destroy()
-    B.zeroRowsColumns(reduction.held, 1.0)
+    pressure = np.isin(reduction.held, reduction.fields[1])
+    B.zeroRowsColumns(reduction.held[~pressure], 1.0)
+    B.zeroRowsColumns(reduction.held[pressure], -1.0)
     return B
