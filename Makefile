@@ -12,7 +12,7 @@ SLOW     := (slow or convergence) and not sweep
 DURATIONS := --durations=25
 OUT      ?= output
 
-.PHONY: help env demo demos test test-serial test-mpi test-all test-slow test-slow-serial test-slow-mpi lint docker-test bench bench-outer bench-volume bench-flow sweep sweep-volume sweep-compaction clean
+.PHONY: help env demo demos test test-serial test-mpi test-all test-slow test-slow-serial test-slow-mpi lint docker-test bench bench-outer bench-volume bench-flow sweep sweep-flow sweep-volume sweep-compaction clean
 
 help:
 	@echo "make demo         the default job: the 4-harness satin, corrected; outputs in $(OUT)/satin_4hs/"
@@ -34,6 +34,8 @@ help:
 	@echo "make bench-flow   the flow solver against the yarns' drag: FGMRES iterations and K against MUMPS' on the"
 	@echo "                  corrected satin4's voxels (0.6, 0.3 mm), yarns from 1e-8 m^2 to solid (~10 min)"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
+	@echo "make sweep-flow   every 2D fabric of the sweep solved, meshed as voxels (0.2 mm, 6 layers) and its"
+	@echo "                  permeability computed; table + $(OUT)/flow_sweep.json"
 	@echo "make sweep-compaction  every 2D fabric of the sweep solved, then pressed to Vf 0.5 (K 50 MPa)"
 	@echo "make sweep-volume the volume stage on the same family: voxel of each input, solve --volume-mesh tet,"
 	@echo "                  voxel of the corrected model, homogenise (~3 h); table + $(OUT)/volume_sweep.json"
@@ -93,6 +95,9 @@ bench-volume:
 
 bench-flow:
 	$(ENV) python3 bench/flow_contrast.py --out $(OUT)/flow_contrast.json
+
+sweep-flow:
+	$(ENV) python3 bench/flow_sweep.py --out $(OUT)/flow_sweep.json
 
 sweep:
 	$(ENV) python3 bench/sweep.py --out $(OUT)/sweep.json
