@@ -34,7 +34,7 @@ help:
 	@echo "make bench-flow   the flow solver against the yarns' drag: FGMRES iterations and K against MUMPS' on the"
 	@echo "                  corrected satin4's voxels (0.6, 0.3 mm), yarns from 1e-8 m^2 to solid (~10 min)"
 	@echo "make sweep        the default command on every fabric of reference/fabrics (~1 h); table + $(OUT)/sweep.json"
-	@echo "make sweep-flow   every 2D fabric of the sweep solved, meshed as voxels (0.2 mm, 6 layers) and its"
+	@echo "make sweep-flow   every 2D fabric of the sweep solved, meshed as voxels (0.3 mm, 4 layers) and its"
 	@echo "                  permeability computed; table + $(OUT)/flow_sweep.json"
 	@echo "make sweep-compaction  every 2D fabric of the sweep solved, then pressed to Vf 0.5 (K 50 MPa)"
 	@echo "make sweep-volume the volume stage on the same family: voxel of each input, solve --volume-mesh tet,"

@@ -6,7 +6,7 @@ step a command in a fresh process as a user runs it:
     textile-fenicsx volume-mesh DIR/corrected.tg3 --kind voxel --size H --layers L --out DIR/vox
     textile-fenicsx permeability DIR/vox/volume.xdmf --fibre-radius R --out DIR/flow
 
-    python3 bench/flow_sweep.py [--size 0.2] [--layers 6] [--only NAME ...] [--out output/flow_sweep.json]
+    python3 bench/flow_sweep.py [--size 0.3] [--layers 4] [--only NAME ...] [--out output/flow_sweep.json]
 
 A case passes when every command exits 0 and K is symmetric (to 1e-6 of its largest entry) and
 positive definite. The table gives K's diagonal at the relaxed fabric's Vf (the voxels' own: the
@@ -78,8 +78,8 @@ def table(records: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--size", type=float, default=0.2, help="voxel size in plane [mm]")
-    parser.add_argument("--layers", type=int, default=6, help="voxels through the thickness")
+    parser.add_argument("--size", type=float, default=0.3, help="voxel size in plane [mm]")
+    parser.add_argument("--layers", type=int, default=4, help="voxels through the thickness")
     parser.add_argument("--fibre-radius", type=float, default=0.0035, help="[mm]")
     parser.add_argument("--only", nargs="+", help="these cases only")
     parser.add_argument("--out", type=Path, default=REPO / "output" / "flow_sweep.json")

@@ -61,17 +61,20 @@ FLOW_REFERENCE_DOFS = 1.24e5
 
 
 # Its iterative solve (the matrix and its reduction R^T A R, the fieldsplit's blocks, BoomerAMG's
-# hierarchies, the Krylov vectors) grows as the unknowns: on the corrected satin's tet mesh at 1.0 mm
-# (936 921 Taylor-Hood unknowns, 2026-12-07) the peak was 8.4 GB on one rank and 5.5 GB a rank on
-# two (11 GB in all): 12 kB an unknown
-FLOW_ITERATIVE_BYTES_PER_DOF = 12e3
+# hierarchies, the Krylov vectors) grows as the matrix's entries: on the corrected satin's tet mesh at
+# 1.0 mm (936 921 Taylor-Hood unknowns, 90.7 M entries, 2026-12-07) the peak was 8.4 GB on one rank
+# and 5.5 GB a rank on two: 93 and 121 bytes an entry. The entries a row, by cell (Taylor-Hood of
+# degree 2, measured there and on the satin's 0.3 mm voxels: 23.3 M entries for 123 901 unknowns):
+# a voxel cell needs twice a tet cell's memory for its unknowns
+FLOW_ITERATIVE_BYTES_PER_ENTRY = 120
+FLOW_ENTRIES_PER_ROW = {"tetrahedron": 97, "hexahedron": 188}
 
 
-def flow_bytes(dofs: int, direct: bool = True) -> float:
-    """The flow cell problem's estimated peak [bytes] for `dofs` unknowns, by a direct solve
-    (FLOW_BYTES_PER_DOF) or an iterative one (FLOW_ITERATIVE_BYTES_PER_DOF)."""
+def flow_bytes(dofs: int, direct: bool = True, cell: str = "hexahedron") -> float:
+    """The flow cell problem's estimated peak [bytes] for `dofs` unknowns on cells of the kind
+    `cell`, by a direct solve (FLOW_BYTES_PER_DOF) or an iterative one (FLOW_ITERATIVE_BYTES_PER_ENTRY)."""
     if not direct:
-        return FLOW_ITERATIVE_BYTES_PER_DOF * dofs
+        return FLOW_ITERATIVE_BYTES_PER_ENTRY * FLOW_ENTRIES_PER_ROW.get(cell, 188) * dofs
     return FLOW_BYTES_PER_DOF * dofs * max(1.0, dofs / FLOW_REFERENCE_DOFS) ** (1 / 3)
 
 

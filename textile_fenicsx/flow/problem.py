@@ -110,7 +110,7 @@ class FlowCellProblem:
         options = dict(options) if options is not None else self.comm.bcast(choose_solver(self.dofs, memory_limit))
         self.iterative = options.get("pc_type") == "fieldsplit"
         how = "iterative" if self.iterative else "direct"
-        memory.check(memory.flow_bytes(self.dofs, not self.iterative),
+        memory.check(memory.flow_bytes(self.dofs, not self.iterative, mesh.topology.cell_name()),
                      what=f"the flow problem's {self.dofs} unknowns ({how} solve)",
                      hint="use a coarser volume mesh" + ("" if self.iterative else " or the iterative solver"),
                      limit_gb=memory_limit)
