@@ -250,6 +250,45 @@ def test_the_deepest_overlap_is_found_between_the_grids_columns(reference_dir, c
 
 
 @pytest.mark.serial
+def test_binned_triangles_give_the_crossings_of_vertical_hits(reference):
+    # rays.TriangleBins (the deepest overlap's rounds of a few hundred points) finds the same
+    # crossings, the same numbers, as vertical_hits, which bins the triangles at every call: points
+    # scattered over the cell and beyond it, on the lattice the metrics' grid uses, and on the
+    # triangles' own vertices and edges
+    from textile_fenicsx.model.rays import TriangleBins, lattice, vertical_hits
+
+    t, _ = reference["ortho"]
+    rng = np.random.default_rng(3)
+    x0, x1, y0, y1 = t.cell.bounds
+    xy, _ = t.cell.grid(60)
+    for i in (0, len(t.yarns) - 1):
+        tris = t.triangles(i)
+        bins = TriangleBins(tris, t.resolution.spacing)
+        for pts in (rng.uniform((x0 - 0.5, y0 - 0.5), (x1 + 0.5, y1 + 0.5), (500, 2)), xy,
+                    tris[:50, :, :2].reshape(-1, 2), tris[:50, :2, :2].mean(axis=1)):
+            grid = lattice(pts) if pts is xy else None
+            want = vertical_hits(tris, pts, t.resolution.spacing, grid)
+            got = bins.hits(pts)
+            a, b = np.lexsort((want[1], want[0])), np.lexsort((got[1], got[0]))
+            assert np.array_equal(want[0][a], got[0][b]) and np.array_equal(want[1][a], got[1][b])
+            assert len(want[0]) > 0
+
+
+@pytest.mark.serial
+def test_a_polygon_section_survives_pickling_unchanged():
+    # Polygon pickles its vertices as one array (the figures' process gets the corrected model) and
+    # comes back as __post_init__ left it: tuples of numpy floats, equal and of the same types
+    import pickle
+
+    from textile_fenicsx.model.sections import Polygon
+
+    p = Polygon(tuple(map(tuple, Ellipse(2.5, 0.35).points(64) + [0.01, -0.02])))
+    q = pickle.loads(pickle.dumps(p, protocol=pickle.HIGHEST_PROTOCOL))
+    assert q == p and hash(q) == hash(p)
+    assert [type(v) for row in q.vertices for v in row] == [type(v) for row in p.vertices for v in row]
+
+
+@pytest.mark.serial
 def test_crowfoot_builder_reproduces_texgen_satin(reference):
     # TexGen's satin4 (SwapPosition at (0,0), (1,1), (2,3), (3,2)) has the same master nodes as our
     # builder, shifted by half a spacing (TexGen's yarn 0 lies on y = 0).

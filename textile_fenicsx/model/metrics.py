@@ -24,6 +24,7 @@ import numpy as np
 
 from textile_fenicsx.common.limits import MAX_GRID, check_count
 from textile_fenicsx.model.fibres import DEFAULT_YARN_VF, Fibres, check_yarn_vf
+from textile_fenicsx.model.queries import columns
 from textile_fenicsx.model.textile import Columns, Textile
 
 log = logging.getLogger(__name__)
@@ -182,10 +183,11 @@ def _deepest(textile: Textile, n: int, depth: np.ndarray, xy: np.ndarray, pairs:
     n_yarns = len(textile.yarns)
     pairs = dict(pairs)
     parallel = comm is not None and comm.size > 1
+    bins: dict = {}  # each yarn's triangles binned once for the LEVELS rounds (queries.columns)
     for _ in range(LEVELS):
         trial = cell.wrap((points[:, None, :] + moves[None] * step).reshape(-1, 2))
         mine = np.array_split(np.arange(len(trial)), comm.size)[comm.rank] if parallel else np.arange(len(trial))
-        col = textile.columns(trial[mine])
+        col = columns(textile, trial[mine], bins=bins)
         bot, top = _clipped(textile, col)
         flat = np.zeros(len(trial))
         flat[mine] = coverage_depth(len(mine), col.point, bot, top)

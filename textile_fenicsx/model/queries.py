@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from textile_fenicsx.model.cell import Cell, Resolution
-from textile_fenicsx.model.rays import lattice, plan_box, vertical_hits
+from textile_fenicsx.model.rays import TriangleBins, lattice, plan_box, vertical_hits
 from textile_fenicsx.model.yarn import Yarn
 
 __all__ = ["RAY_NUDGE", "Columns", "closed_tube", "columns", "inside", "nearest_centreline", "translations", "tubes",
@@ -129,16 +129,26 @@ def yarn_triangles(textile: Textile, i: int, region: tuple | None, cache: dict) 
     return tris
 
 
-def columns(textile: Textile, xy: ArrayLike, yarns: Iterable[int] | None = None) -> Columns:
-    """Vertical-ray intervals of every yarn (or those listed) over in-plane points xy (N, 2)."""
+def columns(textile: Textile, xy: ArrayLike, yarns: Iterable[int] | None = None,
+            bins: dict[int, TriangleBins] | None = None) -> Columns:
+    """Vertical-ray intervals of every yarn (or those listed) over in-plane points xy (N, 2).
+    bins: for a caller that asks about a few points at a time, again and again, of the same
+    model (metrics._deepest): each yarn's triangles binned once (rays.TriangleBins), kept in
+    this dict between the calls (the same answers)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     probe = xy + np.array([0.7548776662, 0.5698402910]) * RAY_NUDGE
     rows = []
     odd = 0
     region = (*(probe[:, 0].min(), probe[:, 0].max()), *(probe[:, 1].min(), probe[:, 1].max())) if len(probe) else None
-    grid = lattice(probe) if len(probe) else None  # the same points for every yarn
+    grid = lattice(probe) if len(probe) and bins is None else None  # the same points for every yarn
     for i in range(len(textile.yarns)) if yarns is None else yarns:
-        pidx, z = vertical_hits(textile.triangles(i, region), probe, textile.resolution.spacing, grid)
+        tris = textile.triangles(i, region)
+        if bins is None:
+            pidx, z = vertical_hits(tris, probe, textile.resolution.spacing, grid)
+        else:
+            if i not in bins or bins[i].source is not tris:
+                bins[i] = TriangleBins(tris, textile.resolution.spacing)
+            pidx, z = bins[i].hits(probe)
         order = np.lexsort((z, pidx))
         pidx, z = pidx[order], z[order]
         starts = np.flatnonzero(np.r_[True, pidx[1:] != pidx[:-1]]) if len(pidx) else np.zeros(0, int)
