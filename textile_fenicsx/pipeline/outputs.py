@@ -126,6 +126,16 @@ def input_figures(textile, surfaces=None) -> list[tuple[str, str, tuple]]:
     return [("textile", "view_before.png", (textile, surfaces, f"{textile.name}: before"))]
 
 
+def corrected_figures(run, surfaces=None) -> list[tuple[str, str, tuple]]:
+    """The figures of a run's corrected model (its view, the cross-sections before and after), as
+    jobs for a figures.Painter: the CLI hands them over as soon as the run has its corrected model
+    (stages.run's on_corrected), to be drawn while its check is measured (with surfaces None the
+    painter builds them)."""
+    corrected = run.corrected
+    return [("textile", "view_after.png", (corrected, surfaces, f"{run.textile.name}: after")),
+            ("cross_sections", "cross_sections.png", (run.textile, corrected, cut_lines(run.textile)))]
+
+
 def write_run(run, out, figures: bool = True, fields: bool = True, surfaces: bool = True, painter=None) -> Path:
     """Write the run's folder `out` (collective); returns its path. fields, surfaces, figures: False
     leaves those parts out (the models and metrics.json are always written). The figures are drawn
@@ -153,14 +163,16 @@ def _write_run(run, out, figures: bool, fields: bool, surfaces: bool, painter) -
             from textile_fenicsx.plot.surfaces import EXPORT, YarnSurfaces
 
             log.info("outputs: surfaces")
-            built = {name: YarnSurfaces.build(t, resolution=EXPORT)
-                     for name, t in (("before", run.textile), ("after", corrected))}
-            if figures:  # drawn while the metrics are measured and the other files written
+            given = painter.surfaces if painter is not None else {}  # those the figures were given
+            for name, t in (("before", run.textile), ("after", corrected)):
+                model, surf = given.get(id(t), (None, None))
+                built[name] = surf if model is t else YarnSurfaces.build(t, resolution=EXPORT)
+            if figures:  # drawn while the other files are written (those asked for earlier, while the
+                # check was measured: the corrected model's, unless the painter last drew another's)
                 log.info("outputs: figures (drawn in the background)")
-                painter.draw([f for f in input_figures(run.textile, built["before"]) + [
-                    ("textile", "view_after.png", (corrected, built["after"], f"{run.textile.name}: after")),
-                    ("cross_sections", "cross_sections.png", (run.textile, corrected, cut_lines(run.textile)))]
-                    if f[1] not in painter.asked])
+                painter.draw([f for f in input_figures(run.textile, built["before"]) if f[1] not in painter.asked])
+                painter.draw([f for f in corrected_figures(run, built["after"])
+                              if painter.models.get(f[1]) is not corrected], model=corrected)
         t1 = time.perf_counter()
         metrics = metrics_document(run)  # measures them, unless they were already
         t0 += time.perf_counter() - t1
@@ -216,11 +228,15 @@ def _write_text(path: Path, text: str) -> None:
 FIELD_NAMES = ("w", "z0", "t", "z", "gap_below", "contact")
 
 
-def _vertex_values(f: dolfinx.fem.Function, cells: np.ndarray) -> np.ndarray:
+def _vertex_values(f: dolfinx.fem.Function, cells: np.ndarray, spaces: dict) -> np.ndarray:
     """Values (len(cells), 3) of a Lagrange field at the vertices of the given local cells of its
-    (degree-1) mesh, in the geometry dofmap's order (a P1 interpolant is exact at the vertices)."""
+    (degree-1) mesh, in the geometry dofmap's order (a P1 interpolant is exact at the vertices).
+    spaces: the P1 space of each mesh met so far, by id (a yarn's five fields share one: a space
+    costs a dofmap, whose index map waits on MPI, 10 ms where the figures' process holds the core)."""
     msh = f.function_space.mesh
-    V1 = dolfinx.fem.functionspace(msh, ("Lagrange", 1))
+    if id(msh) not in spaces:
+        spaces[id(msh)] = dolfinx.fem.functionspace(msh, ("Lagrange", 1))
+    V1 = spaces[id(msh)]
     f1 = dolfinx.fem.Function(V1)
     f1.interpolate(f)
     return f1.x.array[V1.dofmap.list[cells]]
@@ -240,9 +256,11 @@ def yarn_fields(run, k: int):
     nodes = msh.geometry.dofmap[cells]
     ids = msh.geometry.index_map().local_to_global(nodes.ravel().astype(np.int32)).reshape(-1, 3)
     xy = msh.geometry.x[nodes][:, :, :2]
-    w, z0 = _vertex_values(sol.w[k], cells), _vertex_values(y.z0, cells)
-    values = {"w": w, "z0": z0, "t": _vertex_values(y.t, cells), "z": z0 + w,
-              "gap_below": _vertex_values(sol.gap[k], cells), "contact": _vertex_values(sol.contact[k], cells)}
+    spaces: dict = {}
+    w, z0 = _vertex_values(sol.w[k], cells, spaces), _vertex_values(y.z0, cells, spaces)
+    values = {"w": w, "z0": z0, "t": _vertex_values(y.t, cells, spaces), "z": z0 + w,
+              "gap_below": _vertex_values(sol.gap[k], cells, spaces),
+              "contact": _vertex_values(sol.contact[k], cells, spaces)}
     parts = msh.comm.gather((ids, xy, values), root=0)
     if msh.comm.rank != 0:
         return None

@@ -82,24 +82,28 @@ SETTLE_ROUNDS = 3
 
 
 def run(textile: Textile, settings: Settings = Settings(), comm: MPI.Comm = MPI.COMM_WORLD,
-        on_stage: Callable[[str], None] | None = None) -> Run:
+        on_stage: Callable[[str], None] | None = None, on_corrected: Callable[[Run], None] | None = None) -> Run:
     """Mesh the textile's projected regions, sample its mid-surfaces, solve for the displacements
     and correct the textile (collective over comm). on_stage(name) is called as each stage begins
     (mesh, midsurfaces, assemble, solve, correct), on every rank (the bench measures them so).
+    on_corrected(run) is called with each run that has a corrected model as it becomes the one
+    kept, before its check is measured (the CLI hands the corrected model's figures to its
+    painter then, to be drawn while the check runs).
     Where the corrected yarns overlap, or the contact iteration wandered to its cap, or its
     factor lost the plates where the yarns flatten (UnresolvedError), the run is done again on a
     finer mesh (Settings.remesh; the check is then measured here); the Run returned is the last
     that converged, with the earlier ones in `remeshed`. Where pressed yarns spread
     (CompactionTarget.spreading), the widened fabric is solved again, in rounds until the widths
     settle (spreading.py); the Run returned is the last round's, its textile the widened model."""
-    result = _remeshed(textile, settings, comm, on_stage)
+    result = _remeshed(textile, settings, comm, on_stage, on_corrected)
     if settings.compaction is None or settings.compaction.spreading == 0:
         return result
-    return spread(result, textile, settings.compaction, lambda model: _remeshed(model, settings, comm, on_stage))
+    return spread(result, textile, settings.compaction,
+                  lambda model: _remeshed(model, settings, comm, on_stage, on_corrected))
 
 
-def _remeshed(textile: Textile, settings: Settings, comm: MPI.Comm,
-              on_stage: Callable[[str], None] | None) -> Run:
+def _remeshed(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callable[[str], None] | None,
+              on_corrected: Callable[[Run], None] | None = None) -> Run:
     """One run, meshed again finer while a coarse mesh may be why it fails (`run`)."""
     result: Run | None = None
     earlier: list[dict] = []  # the runs before the one kept
@@ -130,6 +134,8 @@ def _remeshed(textile: Textile, settings: Settings, comm: MPI.Comm,
                         "is kept", settings.mesh.seed, again.solution.reason, result.settings.mesh.seed)
             break
         again.remeshed, result = list(earlier), again
+        if on_corrected is not None and again.corrected is not None:
+            on_corrected(again)
         if attempt == settings.remesh:  # no finer run left (remesh=0: the check stays lazy)
             break
         why, spent = _coarse_mesh_failures(result), result.times["total"]

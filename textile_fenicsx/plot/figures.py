@@ -62,13 +62,20 @@ class Painter:
         self._stdin, self._stdout = self._child.stdin, self._child.stdout
         self._pending: dict[str, str] = {}  # the child's file -> the figure's file name
         self.asked: set[str] = set()  # file names of every figure asked for
+        self.models: dict[str, object] = {}  # file name -> the model it was last asked for (`draw`)
+        # id of a model -> (the model, the yarn surfaces a 3D view of it was given), for the caller's
+        # files (outputs.write_run): built once for both
+        self.surfaces: dict[int, tuple[object, object]] = {}
         self._count = 0
 
-    def draw(self, figures: list[tuple[str, str, tuple]]) -> None:
+    def draw(self, figures: list[tuple[str, str, tuple]], model: object = None) -> None:
         """Have the child draw these figures, each (kind (KINDS), file name, arguments); they are
-        pickled together, so that objects they share are written once (a corrected model: 0.08 s).
+        pickled together, so that objects they share are written once (a corrected model: 0.01 s).
         Figures can be asked for before their folder exists (the CLI asks for the input's view
-        before the solve): `collect` says where they go."""
+        before the solve, the corrected model's before its check): `collect` says where they go,
+        and a file name asked for again is drawn again, the last drawing kept. `model`: what they
+        show, kept in `models` by file name (a caller that may ask again skips what it asked for
+        the same model)."""
         jobs = []
         for kind, file_name, args in figures:
             if kind not in KINDS:
@@ -77,6 +84,9 @@ class Painter:
             name = f"{self._count}.png"  # the child's file and answer: never a space in it
             self._pending[name] = file_name
             self.asked.add(file_name)
+            self.models[file_name] = model
+            if kind == "textile" and args[1] is not None:
+                self.surfaces[id(args[0])] = (args[0], args[1])
             jobs.append((name, kind, args))
         if not jobs:
             return
