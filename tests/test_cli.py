@@ -54,13 +54,14 @@ def test_the_run_objects_print_on_one_line():
 @pytest.mark.parametrize("ranks", [1, 2])
 def test_solve_with_permeability_writes_the_cells_tensor_beside_its_volume_mesh(tmp_path, ranks):
     # `solve --volume-mesh voxel --permeability`, serially and on two ranks: the corrected plain
-    # weave's voxel mesh and its permeability in the same folder, K symmetric and positive definite,
+    # weave's voxel mesh (0.2 mm voxels, the default until issue 72: a small flow problem) and its
+    # permeability in the same folder, K symmetric and positive definite,
     # in-plane Kxx = Kyy (the weave's quarter turn maps it onto itself), one summary line for each
     out = tmp_path / "run"
     launch = ["mpirun", "-n", "2"] if ranks > 1 else []
     r = subprocess.run([*launch, sys.executable, "-m", "textile_fenicsx", "solve", "plain", "--seed", "1.0",
-                        "--no-figures", "--volume-mesh", "voxel", "--permeability", "--fibre-radius", "0.0035",
-                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+                        "--no-figures", "--volume-mesh", "voxel", "--volume-size", "0.2", "--permeability",
+                        "--fibre-radius", "0.0035", "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     doc = json.loads((out / "permeability.json").read_text())
     K = np.array(doc["K_m2"])

@@ -196,7 +196,7 @@ def test_the_permeability_falls_as_the_fabric_is_pressed(mpi_tmp_path):
     assert len(models) == len(r.compaction.vf) == 2 and models[0][1] is None
     assert models[-1][0] is r.corrected and models[-1][1] == r.mould
     assert all(y.fibres is not None for model, _ in models for y in model.yarns)  # the fibres the curve counts
-    relaxed, pressed_ = permeability_curve(r, fibre_radius=0.0035)
+    relaxed, pressed_ = permeability_curve(r, fibre_radius=0.0035, size=0.2)  # 0.2 mm in plan: 20 x 20 x 3
     assert relaxed.porosity > pressed_.porosity
     for k in (relaxed, pressed_):
         assert k.checks["positive_definite"] and k.checks["asymmetry"] < 1e-6

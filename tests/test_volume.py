@@ -10,7 +10,7 @@ from mpi4py import MPI
 
 from conftest import gmsh_groups
 from textile_fenicsx.common.errors import FormatError, TextileError
-from textile_fenicsx.io.config import textile_from_dict
+from textile_fenicsx.io.config import load_model, textile_from_dict
 from textile_fenicsx.volume.box import Box, periodic_mismatch
 from textile_fenicsx.volume.stage import VolumeOptions, mesh_cell, volume_mesh
 
@@ -30,6 +30,20 @@ def cross_ply(gap: float = 0.1, fibres: dict | None = None):
     if fibres:
         d["fibres"] = fibres
     return textile_from_dict(d)
+
+
+def saved_cross_ply(folder: Path) -> Path:
+    """The cross-ply saved as a model file in `folder`."""
+    from textile_fenicsx.io.config import save_model
+
+    model = folder / "cross_ply.json"
+    save_model(cross_ply(), model)
+    return model
+
+
+def run(*args, timeout: float = 600):
+    """The command line, as a user runs it."""
+    return subprocess.run(["textile-fenicsx", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_voxel_yarn_volume_converges():
@@ -188,11 +202,142 @@ def test_tet_sizes_beyond_the_bounds_are_refused():
         check_size(lo, hi, TetOptions(size=0.05, max_elements=10**9, memory_limit=1.0))
 
 
+def test_default_voxels_resolve_the_thinnest_yarn_per_axis(caplog):
+    # the cross-ply's yarns are ellipses 0.3 mm tall and 1.6 mm wide in a 4 x 4 x 0.7 mm cell: the
+    # default rule (volume/voxel_sizes.py) asks for 8 voxels across 0.3 mm through the thickness and
+    # 12 across 1.6 mm in plan, each count rounded up (0.7 / 0.0375 = 18.7 -> 19; 4 / 0.133 = 30).
+    # That grid's centres miss 3.6 % of the yarns (their flat tops fall between two layers of
+    # centres); the phase search takes the nearest finer grid within 0.25 %: 33 x 33 x 20 (+0.14 %)
+    from textile_fenicsx.volume.box import cell_box
+    from textile_fenicsx.volume.voxel import PHASE_TOLERANCE, default_grid
+
+    with caplog.at_level("WARNING", logger="textile_fenicsx.volume.voxel"):
+        vm = volume_mesh(cross_ply(), VolumeOptions("voxel", yarn_vf=0.6), MPI.COMM_SELF)
+    sizes, phase = vm.report["sizes"], vm.report["sizes"]["phase"]
+    assert phase["start_grid"] == [30, 30, 19], "the rule's counts, one per axis"
+    assert phase["start_grid_fraction_error"] == pytest.approx(-0.036, abs=0.002), "its centres miss the flat tops"
+    assert vm.report["voxels"] == [33, 33, 20], "the nearest finer grid that holds the yarn fraction"
+    assert abs(phase["fraction_error"]) <= PHASE_TOLERANCE, "within the search's tolerance"
+    assert sizes["thinnest"]["height_mm"] == pytest.approx(0.3, rel=1e-9), "the yarns' height, from their sections"
+    assert 8 <= sizes["thinnest"]["voxels_across"] < 9.2, "at least 8 through the thinnest yarn, at most 3 steps more"
+    assert 12 <= sizes["narrowest"]["voxels_across"] < 14, "12 or more across the narrowest width, 7 steps more at most"
+    assert not sizes["capped"] and sizes["asked_mm"] is None and sizes["fraction_of_rule"] == 1, "the rule, uncapped"
+    assert "voxels across its" not in caplog.text, "a grid that meets the rule is not warned about"
+    # layers given: the default in plan, those layers through the thickness (4.3 across: warned)
+    with caplog.at_level("WARNING", logger="textile_fenicsx.volume.voxel"):
+        vm = volume_mesh(cross_ply(), VolumeOptions("voxel", layers=10, yarn_vf=0.6), MPI.COMM_SELF)
+    assert vm.report["voxels"][2] == 10 and vm.report["voxels"][0] >= 30, "the layers asked, the rule in plan"
+    assert "warp 0 is 4.3 voxels across its height" in caplog.text, "fewer layers than the rule's are warned about"
+    # TexGen's plain weave (yarns 0.3 mm tall, 1.8 mm wide, a 4 x 4 x 0.6 mm cell): 27 x 27 x 16, the
+    # rule's own grid (+0.18 %), the default whose stiffness docs/volume.md measures
+    plain = load_model("reference/models/plain.tg3")
+    counts, rule, search = default_grid(plain, cell_box(plain))
+    assert counts == (27, 27, 16) and search["grids_tried"] == 1, "the plain weave's default grid, as measured"
+    assert rule.sizes[2] <= 0.3 / 8 and rule.sizes[0] <= 1.8 / 12, "each voxel at most the rule's size"
+
+
+@pytest.mark.mpi
+def test_default_voxel_sizes_are_one_grid_on_every_rank(comm):
+    # the default sizes are chosen on rank 0 with the mesh, and every rank reports the same grid; the
+    # distributed mesh holds each of its voxels once
+    cell = mesh_cell(cross_ply(), VolumeOptions("voxel", yarn_vf=0.6), comm)
+    assert comm.allgather(cell.report["voxels"]) == [[33, 33, 20]] * comm.size, "one default grid on every rank"
+    cells = cell.fields.mesh.topology.index_map(3).size_local
+    assert comm.allreduce(cells, op=MPI.SUM) == 33 * 33 * 20, "every voxel on one rank exactly"
+
+
+def test_voxel_sizes_per_axis_give_the_counts_asked():
+    # (HX, HY, HZ): 4 / 0.2, 4 / 0.4 and 0.7 / 0.05 voxels, each the nearest whole number
+    t = cross_ply()
+    vm = volume_mesh(t, VolumeOptions("voxel", (0.2, 0.4, 0.05), yarn_vf=0.6), MPI.COMM_SELF)
+    assert vm.report["voxels"] == [20, 10, 14], "one count per axis, from that axis's size"
+    assert vm.report["sizes"]["asked_mm"] == [0.2, 0.4, 0.05], "the sizes asked are reported as given"
+    # one size is that size along every axis: the same grid and phases as three equal sizes
+    one = volume_mesh(t, VolumeOptions("voxel", 0.2, yarn_vf=0.6), MPI.COMM_SELF)
+    three = volume_mesh(t, VolumeOptions("voxel", (0.2, 0.2, 0.2), yarn_vf=0.6), MPI.COMM_SELF)
+    assert one.report["voxels"] == three.report["voxels"] == [20, 20, 3], "H is H H H (3 layers: 0.7 / 0.2 = 3.5-)"
+    assert np.array_equal(one.phase, three.phase), "the same voxels, phase by phase"
+
+
+def test_a_grid_coarser_than_the_rule_is_warned_with_the_error_to_expect(caplog):
+    # 0.1 mm voxels put 3 across the cross-ply's 0.3 mm yarns (the rule: 8) and 16 across their
+    # 1.6 mm width (the rule: 12): the warning names the yarn, its count, the rule and the error
+    # measured at 3/8 of the rule's resolution
+    from textile_fenicsx.volume.voxel_sizes import expected_error
+
+    with caplog.at_level("WARNING", logger="textile_fenicsx.volume.voxel"):
+        vm = volume_mesh(cross_ply(), VolumeOptions("voxel", 0.1, yarn_vf=0.6), MPI.COMM_SELF)
+    assert "warp 0 is 3.0 voxels across its height of 0.3 mm (the rule: 8)" in caplog.text, caplog.text
+    assert "across its width" not in caplog.text, "16 voxels across the width meet the rule's 12"
+    r = vm.report["sizes"]["fraction_of_rule"]
+    assert r == pytest.approx(3 / 8, rel=1e-3), "the grid has 3/8 of the rule's voxels across the height"
+    assert expected_error(3 / 8) > expected_error(1.0), "a coarser grid is expected to be further off"
+    assert f"expect Ex, Ez and Gxy off by up to about {expected_error(r):.0f} %" in caplog.text, caplog.text
+
+
+def test_a_grid_at_a_poor_phase_is_warned_with_its_yarn_fraction(caplog):
+    # the cross-ply's rule grid asked as sizes, 30 x 30 x 19: it meets the rule (no resolution
+    # warning), but its centres miss 3.6 % of the yarns, which the warning gives with the error it
+    # alone brings (Ex 1.1 % and Gxy 1.7 % per %: 3.9 and 6.1 %)
+    with caplog.at_level("WARNING", logger="textile_fenicsx.volume.voxel"):
+        vm = volume_mesh(cross_ply(), VolumeOptions("voxel", (4 / 30, 4 / 30, 0.7 / 19), yarn_vf=0.6), MPI.COMM_SELF)
+    assert vm.report["voxels"] == [30, 30, 19], "the grid asked"
+    assert vm.report["sizes"]["yarn_fraction_error"] == pytest.approx(-0.036, abs=0.002), "3.6 % of the yarns missed"
+    assert "voxels across its" not in caplog.text, "it meets the rule"
+    assert "yarn fraction is -3.6 % off the model's" in caplog.text, caplog.text
+    assert "expect Ex off by about 3.9 % and Gxy by 6.1 % more from it alone" in caplog.text, caplog.text
+
+
+def test_a_default_grid_too_large_is_coarsened_and_says_so(monkeypatch, caplog):
+    # where the rule's grid would exceed DEFAULT_MAX_VOXELS, the three sizes grow by one factor until
+    # it fits, and the warning says the default is coarser than the rule
+    from textile_fenicsx.volume import voxel_sizes
+
+    monkeypatch.setattr(voxel_sizes, "DEFAULT_MAX_VOXELS", 2000)
+    with caplog.at_level("WARNING", logger="textile_fenicsx.volume.voxel"):
+        vm = volume_mesh(cross_ply(), VolumeOptions("voxel", yarn_vf=0.6), MPI.COMM_SELF)
+    counts = vm.report["voxels"]
+    assert np.prod(counts) <= 2000 and vm.report["sizes"]["capped"], "the default fits the cap"
+    assert np.prod(counts) > 2000 / 1.01**3 / 1.5, "and is no coarser than the cap needs (1 % steps, rounding)"
+    assert "more than 2000 voxels, so the default is coarser" in caplog.text, caplog.text
+
+
+@pytest.mark.serial
+def test_voxel_sizes_on_the_command_line(tmp_path):
+    # `--size HX HY HZ` gives those counts; a bad size (negative, two of them, three for a tet mesh,
+    # and on solve two for --volume-size) exits 2 naming it, before any work: no output
+    model = saved_cross_ply(tmp_path)
+    r = run("volume-mesh", str(model), "--kind", "voxel", "--size", "0.2", "0.4", "0.05", "--yarn-vf", "0.6",
+            "--out", str(tmp_path / "vol"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "vol" / "mesh_report.json").read_text())["voxels"] == [20, 10, 14], "HX HY HZ"
+    out = tmp_path / "bad"
+    for args, words in ((["volume-mesh", str(model), "--kind", "voxel", "--size", "-0.1"],
+                         "volume mesh size must be > 0, got -0.1"),
+                        (["volume-mesh", str(model), "--kind", "voxel", "--size", "0.1", "0.2"],
+                         "--size takes one size H or three HX HY HZ [mm], got 2: 0.1 0.2"),
+                        (["volume-mesh", str(model), "--kind", "tet", "--size", "0.3", "0.3", "0.1"],
+                         "--size takes one size H [mm] for a tet mesh, got 3: 0.3 0.3 0.1"),
+                        (["solve", "plain", "--volume-mesh", "voxel", "--volume-size", "0.1", "0.1"],
+                         "--volume-size takes one size H or three HX HY HZ [mm], got 2: 0.1 0.1")):
+        r = run(*args, "--out", str(out))
+        assert r.returncode == 2 and words in r.stderr, (args, r.stderr[-2000:])
+        assert not out.exists(), "nothing written"
+
+
 def test_options_are_checked():
     with pytest.raises(TextileError, match="kind must be one of voxel, tet"):
         VolumeOptions("hex")
     with pytest.raises(TextileError, match="volume mesh size must be > 0"):
         VolumeOptions("voxel", -1)
+    with pytest.raises(TextileError, match="volume mesh size must be > 0"):
+        VolumeOptions("voxel", (0.1, -0.1, 0.1))
+    with pytest.raises(TextileError, match=r"a voxel mesh takes one size H or three HX HY HZ \[mm\], got 2"):
+        VolumeOptions("voxel", (0.1, 0.2))
+    with pytest.raises(TextileError, match=r"a voxel mesh takes one size H or three HX HY HZ \[mm\], got 4"):
+        VolumeOptions("voxel", (0.1, 0.1, 0.1, 0.1))
+    with pytest.raises(TextileError, match=r"a tet mesh takes one size H \[mm\], got 3"):
+        VolumeOptions("tet", (0.3, 0.3, 0.1))
 
 
 @pytest.mark.serial
@@ -200,13 +345,7 @@ def test_volume_mesh_then_homogenise_commands(tmp_path):
     # the commands as a user runs them, on the cross-ply: the mesh folder, then stiffness.json, whose
     # C lies between the Voigt and Reuss bounds, and its in-plane constants are those of a balanced
     # cross-ply (Ex = Ey, Gxz = Gyz: the model's 90-degree rotation), to the solver's tolerance
-    model = tmp_path / "cross_ply.json"
-    from textile_fenicsx.io.config import save_model
-
-    save_model(cross_ply(), model)
-
-    def run(*args):
-        return subprocess.run(["textile-fenicsx", *args], capture_output=True, text=True, timeout=600)
+    model = saved_cross_ply(tmp_path)
 
     r = run("volume-mesh", str(model), "--kind", "voxel", "--size", "0.2", "--yarn-vf", "0.6", "--out",
             str(tmp_path / "vol"))

@@ -5,7 +5,7 @@
     run = tfx.solve(textile, seed=0.5)         # mesh, contact solve, corrected textile
     run.corrected, run.metrics, run.verdict    # the corrected model, its numbers, its check
     run.write("out/")                          # the output folder (docs/usage.md: "The output folder")
-    cell = tfx.volume_mesh(run.corrected, kind="voxel", size=0.2)   # the periodic volume mesh
+    cell = tfx.volume_mesh(run.corrected, kind="voxel")             # the periodic volume mesh
     result = tfx.homogenise(cell, fibre="e-glass", matrix="epoxy")  # C, S, constants, K
     cell.write("out/volume"), result.write("out/volume")
     k = tfx.permeability(cell, fibre_radius=0.0035)                   # Stokes-Brinkman: K [mm^2], K_m2
@@ -70,11 +70,13 @@ def solve(textile, seed: float = 0.5, method: str = "exact", repeat: tuple[int, 
     return run(textile, Settings(**settings), comm or MPI.COMM_WORLD)
 
 
-def volume_mesh(textile, kind: str = "voxel", size: float | None = None, comm=None, **options) -> CellMesh:
+def volume_mesh(textile, kind: str = "voxel", size: float | tuple[float, ...] | None = None, comm=None,
+                **options) -> CellMesh:
     """The periodic volume mesh of a model (a Textile, or a model file's path): `kind` "voxel" or
-    "tet", element size `size` [mm] (default 0.2 for voxel, 0.35 for tet); other VolumeOptions by
-    name (yarn_vf, z_range, memory_limit, and for tet the TetOptions' own). `.write(folder)` writes
-    its files."""
+    "tet", element size `size` [mm]: H, or for voxels (HX, HY, HZ) (default: tet 0.35; voxel per
+    axis from the yarns' heights and widths, volume.voxel.default_grid); other VolumeOptions by name
+    (yarn_vf, z_range, memory_limit, layers, and for tet the TetOptions' own). `.write(folder)`
+    writes its files."""
     from mpi4py import MPI
 
     from textile_fenicsx.volume.stage import VolumeOptions, mesh_cell
@@ -122,23 +124,26 @@ def permeability(volume, yarns="gebart", fibre_radius=None, comm=None, **options
     return _permeability(fields, PermeabilityOptions(yarns=yarns, fibre_radius=fibre_radius, **options))
 
 
-def permeability_curve(run: Run, yarns="gebart", fibre_radius=None, size: float | None = None,
+def permeability_curve(run: Run, yarns="gebart", fibre_radius=None, size: float | tuple[float, ...] | None = None,
                        layers: int | None = None, comm=None, last: Permeability | None = None,
                        memory_limit: float | None = None) -> list[Permeability]:
     """The permeability at each point of a run's compaction curve (a run solved with
     `compaction=CompactionTarget(..., step_models=True)`): each point's corrected model meshed in
-    voxels of `size` [mm] in plan (default 0.2) and `layers` through its platens' cavity (the relaxed
-    fabric: its yarns' own extent), the same grid at every point (default: the layers `size` gives
-    the last point, the thinnest), then the three flow cell problems (`permeability`; `yarns` and
-    `fibre_radius` as there). `last`: the last point's, where it is known already (its voxel mesh of
-    that size). Fills `run.compaction.K_m2` [m^2]; returns one Permeability per point, in order."""
+    voxels of `size` [mm] in plan (H or (HX, HY, HZ); default the voxel rule's sizes of the last
+    point, the thinnest, as its volume mesh has them) and `layers` through its platens' cavity (the
+    relaxed fabric: its yarns' own extent), the same grid at every point (default: the layers the
+    size along z gives the last point), then the three flow cell problems (`permeability`; `yarns`
+    and `fibre_radius` as there). `last`: the last point's, where it is known already (its voxel
+    mesh of that size). Fills `run.compaction.K_m2` [m^2]; returns one Permeability per point, in
+    order."""
     import logging
 
+    import numpy as np
     from mpi4py import MPI
 
     from textile_fenicsx.common.errors import TextileError
-    from textile_fenicsx.volume.box import DEFAULT_SIZE, cell_box
-    from textile_fenicsx.volume.voxel import voxel_counts
+    from textile_fenicsx.volume.box import cell_box
+    from textile_fenicsx.volume.voxel import default_grid, voxel_counts
 
     if run.compaction is None or run.step_models is None:
         raise TextileError("the permeability along a compaction curve needs a run pressed with "
@@ -146,9 +151,12 @@ def permeability_curve(run: Run, yarns="gebart", fibre_radius=None, size: float 
     comm = comm or MPI.COMM_WORLD
     log = logging.getLogger("textile_fenicsx.api")
     cavities = [None if mould is None else (mould.bottom, mould.top) for _, mould in run.step_models]
-    if layers is None:
+    if size is None or layers is None:
         box = cell_box(run.step_models[-1][0], cavities[-1])
-        layers = voxel_counts(box, DEFAULT_SIZE["voxel"] if size is None else size)[2]
+        if size is None:  # the last point's default grid, as its volume mesh has it
+            size = tuple(float(v) for v in box.size / np.array(default_grid(run.step_models[-1][0], box, layers)[0]))
+        if layers is None:
+            layers = voxel_counts(box, size)[2]
     results = []
     for i, ((model, _), z_range) in enumerate(zip(run.step_models, cavities)):
         if last is not None and i == len(run.step_models) - 1:

@@ -35,10 +35,13 @@ VOLUME_DESCRIPTION = (
 
 def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
     """The volume mesh's options (on `volume-mesh`, and on `solve` with the prefix 'volume-')."""
-    p.add_argument(f"--{prefix}size", type=float, metavar="H",
-                   help="element size [mm] (default 0.2 for voxel, 0.35 for tet)")
+    p.add_argument(f"--{prefix}size", type=float, nargs="+", metavar="H",
+                   help="element size [mm]: H, or for voxels HX HY HZ, one per axis (default: tet 0.35; voxels "
+                   "per axis from the yarns: 8 across the thinnest yarn's height, 12 across the narrowest yarn's "
+                   "width, at most 60 000, docs/volume.md)")
     p.add_argument(f"--{prefix}layers", type=int, metavar="N",
-                   help="voxel: N voxels through the thickness, H in plan (default: the thickness over H, rounded)")
+                   help="voxel: N voxels through the thickness (default: the thickness over the size along z, "
+                   "rounded)")
     p.add_argument("--yarn-vf", type=float, metavar="V",
                    help="every yarn's intra-yarn fibre volume fraction, instead of the model's fibre data "
                    "(on solve also the compaction law's relaxed fraction and the metrics' Vf; default: from the "
@@ -52,14 +55,19 @@ def add_volume_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
                        "thinnest yarn's height; the model must hold 0.75 G: solve --min-gap G)")
 
 
-def options_from(args: argparse.Namespace, kind: str, size: float, layers: int | None = None) -> VolumeOptions:
-    """VolumeOptions from the parsed arguments (checked before any work)."""
+def options_from(args: argparse.Namespace, kind: str, size: list[float] | None, layers: int | None = None,
+                 flag: str = "--size") -> VolumeOptions:
+    """VolumeOptions from the parsed arguments (checked before any work); size: `flag`'s values."""
     from textile_fenicsx.volume.stage import VolumeOptions
 
+    if size is not None and len(size) not in ((1,) if kind == "tet" else (1, 3)):
+        given = " ".join(f"{h:g}" for h in size)
+        raise TextileError(f"{flag} takes one size H [mm] for a tet mesh, got {len(size)}: {given}" if kind == "tet"
+                           else f"{flag} takes one size H or three HX HY HZ [mm], got {len(size)}: {given}")
     z_range = getattr(args, "z_range", None)
-    return VolumeOptions(kind=kind, size=size, yarn_vf=args.yarn_vf, z_range=tuple(z_range) if z_range else None,
-                         gap=getattr(args, "gap", None), memory_limit=getattr(args, "memory_limit", None),
-                         layers=layers)
+    return VolumeOptions(kind=kind, size=None if size is None else tuple(size), yarn_vf=args.yarn_vf,
+                         z_range=tuple(z_range) if z_range else None, gap=getattr(args, "gap", None),
+                         memory_limit=getattr(args, "memory_limit", None), layers=layers)
 
 
 def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
@@ -68,7 +76,7 @@ def solve_options(args: argparse.Namespace) -> VolumeOptions | None:
         return None
     if not args.out:
         raise TextileError("--volume-mesh needs --out DIR (the volume mesh's files go there)")
-    return options_from(args, args.volume_mesh, args.volume_size, args.volume_layers)
+    return options_from(args, args.volume_mesh, args.volume_size, args.volume_layers, "--volume-size")
 
 
 def flow_options(args: argparse.Namespace, volume: VolumeOptions | None) -> PermeabilityOptions | None:

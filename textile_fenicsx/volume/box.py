@@ -21,12 +21,12 @@ from textile_fenicsx.model.textile import Textile
 log = logging.getLogger(__name__)
 
 KINDS = ("voxel", "tet")
-# The element size [mm] of each kind where none is given. voxel: 0.2, homogenised in about a minute
-# on 2 ranks (coarse: the corrected satin's Ex 8 % below the tet's, README). tet: 0.35, the volume
-# sweep's size (docs/sweep.md); on the corrected satin every engineering constant moves by at most
-# 0.07 % from 0.35 to 0.25 mm, while 0.25 and 0.2 mm take 1.3 and 1.7 x the unknowns (README,
-# "Refinement, and voxel against tet").
-DEFAULT_SIZE = {"voxel": 0.2, "tet": 0.35}
+# The tet mesh's element size [mm] where none is given: 0.35, the volume sweep's size
+# (docs/sweep.md); on the corrected satin every engineering constant moves by at most 0.07 % from
+# 0.35 to 0.25 mm, while 0.25 and 0.2 mm take 1.3 and 1.7 x the unknowns (docs/volume.md,
+# "Refinement, and voxel against tet"). A voxel mesh's default sizes are per axis, from the
+# yarns (voxel_sizes.py, voxel.default_grid).
+DEFAULT_SIZE = {"tet": 0.35}
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from textile_fenicsx.common.parallel import wait_asleep
 from textile_fenicsx.model.fibres import HEXAGONAL, check_yarn_vf
 from textile_fenicsx.model.textile import Textile
 from textile_fenicsx.volume.box import DEFAULT_SIZE, KINDS, VolumeMesh, cell_box
+from textile_fenicsx.volume.voxel import check_sizes
 
 if TYPE_CHECKING:
     from textile_fenicsx.volume.files import VolumeFields
@@ -36,17 +37,18 @@ class VolumeOptions:
     """How to mesh the cell.
 
     kind: "voxel" (hexahedra, phase at their centres) or "tet" (conforming tetrahedra).
-    size: element size H [mm] (None: DEFAULT_SIZE of the kind). yarn_vf: every yarn's intra-yarn
-    fibre volume fraction [-], instead of the model's fibre data. z_range: the cell through the
-    thickness (zmin, zmax) [mm], e.g. a mould's cavity; None: the yarns' own extent (tet: padded by
-    half the gap). gap: tet only, the least gap between yarns the mesh is made for [mm]
-    (volume.tet: default 5 % of the thinnest yarn's height). memory_limit: largest memory [GB] the
-    mesh may take (default: what the system has available). layers: voxel only, the voxels through
-    the thickness (default: the thickness over `size`, rounded).
+    size: element size [mm]: one H, or for voxels (HX, HY, HZ), one per axis (None: voxel, the
+    default grid of voxel.default_grid, from the yarns' heights and widths; tet, DEFAULT_SIZE).
+    yarn_vf: every yarn's intra-yarn fibre volume fraction [-], instead of the model's fibre data.
+    z_range: the cell through the thickness (zmin, zmax) [mm], e.g. a mould's cavity; None: the
+    yarns' own extent (tet: padded by half the gap). gap: tet only, the least gap between yarns the
+    mesh is made for [mm] (volume.tet: default 5 % of the thinnest yarn's height). memory_limit:
+    largest memory [GB] the mesh may take (default: what the system has available). layers: voxel
+    only, the voxels through the thickness (default: the thickness over the size along z, rounded).
     """
 
     kind: str = "voxel"
-    size: float | None = None
+    size: float | tuple[float, ...] | None = None
     yarn_vf: float | None = None
     z_range: tuple[float, float] | None = None
     gap: float | None = None
@@ -55,13 +57,30 @@ class VolumeOptions:
 
     @property
     def element_size(self) -> float:
-        """size, or the kind's DEFAULT_SIZE [mm]."""
-        return DEFAULT_SIZE[self.kind] if self.size is None else self.size
+        """A tet mesh's size: size, or DEFAULT_SIZE [mm]."""
+        assert self.kind == "tet" and not isinstance(self.size, tuple)
+        return DEFAULT_SIZE["tet"] if self.size is None else self.size
+
+    @property
+    def voxel_sizes(self) -> tuple[float, float, float] | None:
+        """A voxel mesh's (hx, hy, hz) [mm], or None for the default rule."""
+        assert self.kind == "voxel"
+        return None if self.size is None else check_sizes(self.size)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise TextileError(f"volume mesh kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
-        limits.check_length("volume mesh size", self.element_size)
+        if self.size is not None and np.ndim(self.size) > 0:
+            size = tuple(np.ravel(np.asarray(self.size, dtype=object)).tolist())
+            if self.kind == "tet" and len(size) != 1:
+                raise TextileError(f"a tet mesh takes one size H [mm], got {len(size)}: "
+                                   f"{' '.join(str(v) for v in size)} (three, HX HY HZ, are a voxel mesh's)")
+            object.__setattr__(self, "size", size[0] if len(size) == 1 else size)
+        if self.kind == "voxel":
+            if self.size is not None:
+                object.__setattr__(self, "size", _one_or_three(check_sizes(self.size)))
+        else:
+            limits.check_length("volume mesh size", self.element_size)
         if self.gap is not None:
             limits.check_length("tet gap", self.gap)
         if self.yarn_vf is not None:
@@ -72,6 +91,11 @@ class VolumeOptions:
             if self.kind != "voxel":
                 raise TextileError("layers through the thickness are a voxel mesh's; a tet mesh takes its size only")
             limits.check_count("voxel layers", self.layers, 1, MAX_LAYERS)
+
+
+def _one_or_three(sizes: tuple[float, float, float]) -> float | tuple[float, ...]:
+    """One size where the three are one (as given), else the three."""
+    return sizes[0] if len(set(sizes)) == 1 else sizes
 
 
 def fibre_fractions(textile: Textile, options: VolumeOptions) -> list[float]:
@@ -101,7 +125,7 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
             if options.kind == "voxel":
                 from textile_fenicsx.volume.voxel import voxel_mesh
 
-                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.element_size, vf,
+                result = voxel_mesh(textile, cell_box(textile, options.z_range), options.voxel_sizes, vf,
                                     options.layers)
             else:
                 result = _tet(textile, options, vf)
