@@ -17,6 +17,7 @@ import ctypes.util
 from textile_fenicsx.common.errors import TextileError
 
 __all__ = ["BYTES_PER_DOF", "BYTES_PER_DOF_OUT_OF_CORE", "BYTES_PER_RANK", "HOMOGENISE_BYTES_PER_DOF",
+           "HOMOGENISE_RANK_GROWTH",
            "available_memory", "check", "release_freed_memory"]
 
 # Memory of a plate solve per unknown [bytes], measured by `make bench` (satin coupons, summed peaks:
@@ -36,9 +37,15 @@ BYTES_PER_RANK = 0.3e9
 # are not measured, and take P2's figure. Since 2026-11-27 the elastic operator is also held in
 # block CSR (cellproblem.py): bench/volume_bench.py then measured serially 3.5 kB/dof on P2
 # tetrahedra (4.62 and 6.13 GB at 1.33 and 1.76 M dofs) and 6.3 kB/dof on Q2 hexahedra (2.66 GB at
-# 421k); Q1 takes its 2026-11-26 figure plus the copy (27 entries a row, 8.4 bytes each).
+# 421k). Q1 hexahedra: their 2026-11-26 peak on 2 ranks, at most 2 x 2.49 GB for 1.17 M dofs (4.3
+# kB/dof summed), over the growth below for the second rank.
 HOMOGENISE_BYTES_PER_DOF = {("tetrahedron", 2): 3.6e3, ("hexahedron", 2): 6.5e3,
-                            ("tetrahedron", 1): 3.6e3, ("hexahedron", 1): 2.3e3}
+                            ("tetrahedron", 1): 3.6e3, ("hexahedron", 1): 3.5e3}
+# The unknowns are shared by the ranks, so the sum over ranks grows little beyond the serial figure:
+# the voxel satin's default grid (1.25 M Q2 unknowns, 2026-12-07) peaked at 6.8 GB on one rank and
+# 3.5 GB a rank on two (7.0 GB, +3 %). The estimate allows 25 % more a rank beyond the first (it
+# counted the serial figure on every rank until then, and refused that grid on two ranks).
+HOMOGENISE_RANK_GROWTH = 0.25
 
 
 def available_memory() -> float:

@@ -133,9 +133,11 @@ class Homogenised:
 
 def estimated_bytes(dofs: int, cell: str, ranks: int = 1, degree: int = 2) -> float:
     """Peak memory [bytes], summed over ranks, of homogenising with `dofs` elastic unknowns of the
-    given degree (memory.HOMOGENISE_BYTES_PER_DOF: per dof and rank, as measured)."""
-    per_dof = memory.HOMOGENISE_BYTES_PER_DOF
-    return ranks * (dofs * per_dof.get((cell, degree), max(per_dof.values())) + memory.BYTES_PER_RANK)
+    given degree: the serial figure per dof (memory.HOMOGENISE_BYTES_PER_DOF), grown by
+    memory.HOMOGENISE_RANK_GROWTH for each rank beyond the first, and each rank's own."""
+    per_dof = memory.HOMOGENISE_BYTES_PER_DOF.get((cell, degree), max(memory.HOMOGENISE_BYTES_PER_DOF.values()))
+    growth = 1 + memory.HOMOGENISE_RANK_GROWTH * (ranks - 1)
+    return dofs * per_dof * growth + ranks * memory.BYTES_PER_RANK
 
 
 def homogenise(mesh, cell_tags, direction, yarn_vf, fibre, matrix,
