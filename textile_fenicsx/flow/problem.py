@@ -25,6 +25,7 @@ import dolfinx
 import dolfinx.fem.petsc
 from textile_fenicsx.common import memory
 from textile_fenicsx.common.errors import SolverError
+from textile_fenicsx.common.petsc import petsc_options
 from textile_fenicsx.flow.forms import stokes_brinkman_forms
 from textile_fenicsx.flow.reduction import periodic_reduction, reduced
 from textile_fenicsx.homogenisation.cellproblem import cell_measure
@@ -146,10 +147,7 @@ class FlowCellProblem:
             self.ksp = self._keep(PETSc.KSP().create(self.comm))
             prefix = f"tfx_flow_{next(_serial)}_"
             self.ksp.setOptionsPrefix(prefix)
-            database = PETSc.Options()
-            for key, value in options.items():
-                database[prefix + key] = value
-            try:
+            with petsc_options(prefix, options):
                 self.ksp.setOperators(self.A)
                 pc = self.ksp.getPC()
                 pc.setType("fieldsplit")
@@ -158,9 +156,6 @@ class FlowCellProblem:
                 pc.setFieldSplitIS(("u", velocity), ("p", pressure))
                 self.ksp.setFromOptions()
                 self.ksp.setUp()
-            finally:
-                for key in options:
-                    database.delValue(prefix + key)
         self.setup_seconds = time.perf_counter() - t0
         self.iterations: list[int] = []
 

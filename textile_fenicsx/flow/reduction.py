@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 import dolfinx
 import dolfinx.fem.petsc
 from textile_fenicsx.common.errors import GeometryError
+from textile_fenicsx.common.petsc import petsc_options
 from textile_fenicsx.flow.percolation import pockets
 from textile_fenicsx.homogenisation.periodic import Box, check_node_periodicity
 
@@ -173,12 +174,10 @@ def reduced(form: dolfinx.fem.Form, reduction: Reduction) -> PETSc.Mat:
     """R^T A R of the form's matrix A, its held rows and columns the identity's (collective)."""
     A = dolfinx.fem.petsc.assemble_matrix(form)
     A.assemble()
-    database = PETSc.Options()
-    database["matptap_via"] = PTAP_SERIAL if A.comm.size == 1 else PTAP_PARALLEL
     try:
-        B = A.PtAP(reduction.R)
+        with petsc_options("", {"matptap_via": PTAP_SERIAL if A.comm.size == 1 else PTAP_PARALLEL}):
+            B = A.PtAP(reduction.R)
     finally:
-        database.delValue("matptap_via")
         A.destroy()
     # the held rows of R^T A R are empty (a slave's) or not: give each a diagonal entry (merged in
     # by axpy with a diagonal of the held rows; MPIAIJ's zeroRowsColumns needs the entry, and

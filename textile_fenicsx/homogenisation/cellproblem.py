@@ -31,6 +31,7 @@ from petsc4py import PETSc
 import dolfinx
 import dolfinx.fem.petsc
 from textile_fenicsx.common.errors import SolverError
+from textile_fenicsx.common.petsc import petsc_options
 from textile_fenicsx.homogenisation.periodic import Box, periodic_constraint, pin
 from textile_fenicsx.homogenisation.pmultigrid import prolongation
 
@@ -203,18 +204,12 @@ class CellProblem:
         self.ksp = self._keep(PETSc.KSP().create(self.V.mesh.comm))
         prefix = f"tfx_{self.name}_{next(_serial)}_"
         self.ksp.setOptionsPrefix(prefix)
-        database = PETSc.Options()
-        for key, value in options.items():
-            database[prefix + key] = value
-        try:
+        with petsc_options(prefix, options):
             self.ksp.setOperators(self.operator, self.A)
             self.ksp.setFromOptions()
             if two_level(options):
                 self._coarse_level()
             self.ksp.setUp()  # GAMG reads its options and builds the hierarchy here
-        finally:
-            for key in options:
-                database.delValue(prefix + key)
         self.pc_seconds = time.perf_counter() - t0
 
     def _coarse_level(self) -> None:

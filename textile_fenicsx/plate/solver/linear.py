@@ -7,6 +7,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from textile_fenicsx.common.errors import SolverError
+from textile_fenicsx.common.petsc import petsc_options
 
 __all__ = ["DIRECT_LDLT", "DIRECT_LU", "OUT_OF_CORE", "DirectSolver", "SolverError", "check_converged"]
 
@@ -115,22 +116,13 @@ class DirectSolver:
     def __init__(self, comm, options: dict, prefix: str = "tfx_contact"):
         self.ksp = PETSc.KSP().create(comm)
         self._prefix = f"{prefix}_{next(_serial)}_"
-        self._keys = list(options)
         self.ksp.setOptionsPrefix(self._prefix)
-        database = PETSc.Options()
-        for key, value in options.items():
-            database[self._prefix + key] = value
+        self._options = petsc_options(self._prefix, options)  # closed after the first factorisation
         try:
             self.ksp.setFromOptions()
         except Exception:
-            self._forget()
+            self._options.close()
             raise
-
-    def _forget(self) -> None:
-        database = PETSc.Options()
-        for key in self._keys:
-            database.delValue(self._prefix + key)
-        self._keys = []
 
     def factor(self, A: PETSc.Mat) -> None:
         """Factorise A (numerically only after the first time: the pattern stays)."""
@@ -138,12 +130,12 @@ class DirectSolver:
         try:
             self.ksp.setUp()
         finally:
-            self._forget()
+            self._options.close()
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         """x = A^-1 b with the last factorisation."""
         self.ksp.solve(b, x)
 
     def destroy(self) -> None:
-        self._forget()
+        self._options.close()
         self.ksp.destroy()
