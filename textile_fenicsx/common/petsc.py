@@ -6,8 +6,9 @@
         ksp.setUp()
 
 writes each key under the prefix and deletes each key it wrote when the block ends, also on an
-error, so that no option outlives the object that read it nor reaches the next one. Where the options are read over more than one call (MUMPS reads its
-ICNTL at the first factorisation), keep the returned object and `close()` it after the last read.
+error, so that no option outlives the object that read it nor reaches the next one. Where the
+options are read over more than one call (MUMPS reads its ICNTL at the first factorisation), keep
+the returned object and `close()` it after the last read.
 """
 
 from collections.abc import Mapping
