@@ -20,6 +20,7 @@ _install_excepthook()  # under mpirun with several ranks: an uncaught exception 
 from textile_fenicsx.api import (  # noqa: E402
     build,
     homogenise,
+    homogenise_model,
     permeability,
     permeability_curve,
     read,
@@ -29,5 +30,5 @@ from textile_fenicsx.api import (  # noqa: E402
 )
 from textile_fenicsx.version import __version__  # noqa: E402
 
-__all__ = ["__version__", "build", "homogenise", "permeability", "permeability_curve", "read", "show_progress", "solve",
-           "volume_mesh"]
+__all__ = ["__version__", "build", "homogenise", "homogenise_model", "permeability", "permeability_curve", "read",
+           "show_progress", "solve", "volume_mesh"]

@@ -28,8 +28,8 @@ if TYPE_CHECKING:
     from textile_fenicsx.pipeline.stages import Run
     from textile_fenicsx.volume.stage import CellMesh
 
-__all__ = ["build", "homogenise", "permeability", "permeability_curve", "read", "show_progress", "solve",
-           "volume_mesh"]
+__all__ = ["build", "homogenise", "homogenise_model", "permeability", "permeability_curve", "read", "show_progress",
+           "solve", "volume_mesh"]
 
 
 def read(path) -> Textile:
@@ -103,6 +103,26 @@ def homogenise(volume, fibre="e-glass", matrix="epoxy", comm=None, **options) ->
         fields = read_volume(volume, comm or MPI.COMM_WORLD)
     return _homogenise(fields.mesh, fields.phase, fields.direction, fields.yarn_vf, fibre, matrix,
                        HomogeniseOptions(**options))
+
+
+def homogenise_model(textile, volume=None, fibre="e-glass", matrix="epoxy", comm=None, accuracy: float | None = None,
+                     **options) -> Homogenised:
+    """Homogenise a model (a Textile or a model file's path) with the error of its properties: it
+    is meshed by `volume` (VolumeOptions; default voxels at the default sizes) and by meshes RATIO
+    times coarser and, with an `accuracy` asked (a fraction, e.g. 0.01), finer ones until every
+    engineering constant's and conductivity's estimated error is within it
+    (volume/refinement.py). The result is the finest mesh's, its `.error` the estimate, written
+    to stiffness.json's "error_estimate". Other HomogeniseOptions by name."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.homogenisation import HomogeniseOptions
+    from textile_fenicsx.homogenisation.estimate import homogenise_model as _homogenise_model
+    from textile_fenicsx.volume.stage import VolumeOptions
+
+    if not hasattr(textile, "yarns"):
+        textile = read(textile)
+    return _homogenise_model(textile, volume or VolumeOptions(), fibre, matrix, HomogeniseOptions(**options),
+                             accuracy, comm or MPI.COMM_WORLD)
 
 
 def permeability(volume, yarns="gebart", fibre_radius=None, comm=None, **options):

@@ -249,7 +249,12 @@ def _homogenise_command(subparsers: Subparsers) -> None:
     """`homogenise`: the effective stiffness and conductivity of a meshed cell."""
     p = subparsers.add_parser("homogenise", help="effective stiffness and conductivity of a meshed periodic cell",
                               description=volume_commands.HOMOGENISE_DESCRIPTION)
-    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5)")
+    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5); or a model "
+                   "(.tg3, .toml, .json), meshed here in voxels by the volume options, with the error estimate")
+    volume_commands.add_volume_options(p)
+    p.add_argument("--accuracy", type=float, metavar="PERCENT",
+                   help="with a model: refine the mesh until every property's estimated error is within PERCENT %% "
+                   "(default: the mesh asked and one coarser, for the estimate)")
     p.add_argument("--fibre", default="e-glass", metavar="NAME|FILE",
                    help="fibre material: e-glass (default), t300, or a TOML file (isotropic E, nu or transversely "
                    "isotropic E1 E2 G12 nu12 G23; conductivities k or k1 k2)")
@@ -283,7 +288,14 @@ def _permeability_command(subparsers: Subparsers) -> None:
     """`permeability`: the permeability tensor of a meshed cell."""
     p = subparsers.add_parser("permeability", help="permeability tensor of a meshed periodic cell (Stokes-Brinkman)",
                               description=volume_commands.PERMEABILITY_DESCRIPTION)
-    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5)")
+    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5); or a model "
+                   "(.tg3, .toml, .json), meshed here by --kind and the volume options, with the error estimate")
+    p.add_argument("--kind", choices=["voxel", "tet"], default="voxel",
+                   help="with a model: voxel hexahedra (default) or conforming tetrahedra")
+    volume_commands.add_volume_options(p)
+    p.add_argument("--accuracy", type=float, metavar="PERCENT",
+                   help="with a model: refine the mesh until every property's estimated error is within PERCENT %% "
+                   "(default: the mesh asked and one coarser, for the estimate)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for permeability.json and the flow's "
                    "files (created if missing)")
     p.add_argument("--yarn-permeability", type=_yarn_permeability, default="gebart", metavar="gebart|impermeable|K",

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -191,7 +192,10 @@ HOMOGENISE_DESCRIPTION = (
     "their constants from --fibre and --matrix at each element's fibre fraction by Chamis' micromechanics; "
     "the matrix is --matrix. Writes DIR/stiffness.json: C and S = C^-1 (6 x 6, MPa; Voigt order 11 22 33 "
     "23 13 12, engineering shear strains), Ex Ey Ez Gxy Gxz Gyz nuxy nuxz nuyz, the Voigt and Reuss bounds, "
-    "the conductivity K (W/(m K)), Vf, dofs, iterations, seconds; prints one line. Runs under mpirun.")
+    "the conductivity K (W/(m K)), Vf, dofs, iterations, seconds; prints one line. Given a model instead of a "
+    "mesh, meshes it in voxels (the volume options) and again 1.5 x coarser, and adds each property's estimated "
+    "discretisation error (Richardson, Roache's GCI: error_estimate); --accuracy P refines until within P %. "
+    "Runs under mpirun.")
 
 
 PERMEABILITY_DESCRIPTION = (
@@ -223,20 +227,48 @@ def permeability(args: argparse.Namespace) -> int:
     return 0
 
 
+MODEL_SUFFIXES = (".tg3", ".toml", ".json")
+
+
 def homogenise(args: argparse.Namespace) -> int:
     from mpi4py import MPI
 
     from textile_fenicsx.api import homogenise as run_homogenise
+    from textile_fenicsx.api import homogenise_model
 
     comm = MPI.COMM_WORLD
     from textile_fenicsx.homogenisation import material
 
     material(args.fibre), material(args.matrix)  # a bad name or file is refused before any work
+    model = Path(args.mesh).suffix.lower() in MODEL_SUFFIXES
+    volume = options_from(args, "voxel", args.size, args.layers) if model else None
+    if not model:
+        given = [flag for flag, value in (("--accuracy", args.accuracy), ("--size", args.size),
+                                          ("--layers", args.layers), ("--yarn-vf", args.yarn_vf),
+                                          ("--z-range", args.z_range), ("--gap", args.gap)) if value is not None]
+        if given:
+            raise TextileError(f"{', '.join(given)} need a model ({', '.join(MODEL_SUFFIXES)}) to mesh, not the mesh "
+                               f"{args.mesh}: give homogenise the model file")
+    if args.accuracy is not None and not 0 < args.accuracy < 100:
+        raise TextileError(f"--accuracy is a percentage between 0 and 100, got {args.accuracy:g}")
+    settings = dict(degree=args.degree, conduction=not args.no_conduction, memory_limit=args.memory_limit)
     with claim_output(args.out, inputs=[args.mesh], names=("stiffness.json",), force=True, comm=comm):
-        result = run_homogenise(args.mesh, args.fibre, args.matrix, comm, degree=args.degree,
-                                conduction=not args.no_conduction, memory_limit=args.memory_limit)
+        if volume is not None:
+            result = homogenise_model(args.mesh, volume, args.fibre, args.matrix, comm,
+                                      None if args.accuracy is None else args.accuracy / 100, **settings)
+        else:
+            result = run_homogenise(args.mesh, args.fibre, args.matrix, comm, **settings)
         result.write(args.out, comm)
     if comm.rank == 0:
         print(result.summary())
         print(Path(args.out) / "stiffness.json")
+    if result.error is not None and not result.error["accuracy_met"]:
+        if comm.rank == 0:
+            worst = max(result.error["quantities"].items(), key=lambda q: q[1]["relative_error"])
+            print(f"textile-fenicsx: error: accuracy {args.accuracy:g} % not reached: {worst[0]}'s estimated error "
+                  f"is {100 * worst[1]['relative_error']:.2g} % after {len(result.error['meshes'])} meshes "
+                  f"({result.error['stopped']}); stiffness.json holds the finest mesh's values and their estimate. "
+                  "Ask a larger --accuracy, or give --memory-limit where the memory guard stopped it",
+                  file=sys.stderr)
+        return 1
     return 0

@@ -69,6 +69,7 @@ class Homogenised:
     seconds: dict
     ranks: int
     materials: dict = field(default_factory=dict)
+    error: dict | None = None  # the discretisation error's estimate (volume/refinement.py), where made
 
     def checks(self) -> dict:
         """The smallest eigenvalues of C, Voigt - C and C - Reuss over C's largest entry (positive:
@@ -91,6 +92,10 @@ class Homogenised:
                 f"Vf {self.fibre_fraction:.3f}")
         if self.K is not None:
             text += f"; kx {self.K[0, 0]:.3g} ky {self.K[1, 1]:.3g} kz {self.K[2, 2]:.3g} W/(m K)"
+        if self.error is not None:
+            rel = {k: q["relative_error"] for k, q in self.error["quantities"].items()}
+            worst = max(rel, key=lambda k: rel[k])
+            text += f"; estimated error at most {100 * rel[worst]:.2g} % ({worst})"
         return text
 
     def write(self, out, comm=None) -> Path:
@@ -122,6 +127,7 @@ class Homogenised:
             "engineering_constants": {k: float(v) for k, v in self.constants.items()},
             "bounds": {"voigt": matrix(self.voigt), "reuss": matrix(self.reuss)},
             "checks": self.checks(),
+            "error_estimate": self.error,
             "conductivity": None if self.K is None else {
                 "K": matrix(self.K), "bounds": {"voigt": matrix(self.K_voigt), "reuss": matrix(self.K_reuss)}},
             "fibre_volume_fraction": self.fibre_fraction, "yarn_volume_fraction": self.yarn_fraction,

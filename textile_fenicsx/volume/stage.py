@@ -45,6 +45,8 @@ class VolumeOptions:
     mesh is made for [mm] (volume.tet: default 5 % of the thinnest yarn's height). memory_limit:
     largest memory [GB] the mesh may take (default: what the system has available). layers: voxel
     only, the voxels through the thickness (default: the thickness over the size along z, rounded).
+    scale: every element size, given or default, times this [-] (a coarser or finer mesh of the same
+    rule, for grid convergence: volume/refinement.py; voxel layers given are divided by it).
     """
 
     kind: str = "voxel"
@@ -54,6 +56,7 @@ class VolumeOptions:
     gap: float | None = None
     memory_limit: float | None = None
     layers: int | None = None
+    scale: float = 1.0
 
     @property
     def element_size(self) -> float:
@@ -91,6 +94,13 @@ class VolumeOptions:
             if self.kind != "voxel":
                 raise TextileError("layers through the thickness are a voxel mesh's; a tet mesh takes its size only")
             limits.check_count("voxel layers", self.layers, 1, MAX_LAYERS)
+        if not (np.isfinite(self.scale) and 0.1 <= self.scale <= 10):
+            raise TextileError(f"volume mesh scale must be between 0.1 and 10, got {self.scale}")
+
+    @property
+    def scaled_layers(self) -> int | None:
+        """The voxel layers asked, divided by the scale (at least one)."""
+        return None if self.layers is None else max(1, round(self.layers / self.scale))
 
 
 def _one_or_three(sizes: tuple[float, float, float]) -> float | tuple[float, ...]:
@@ -126,7 +136,7 @@ def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
                 from textile_fenicsx.volume.voxel import voxel_mesh
 
                 result = voxel_mesh(textile, cell_box(textile, options.z_range), options.voxel_sizes, vf,
-                                    options.layers)
+                                    options.scaled_layers, options.scale)
             else:
                 result = _tet(textile, options, vf)
         except (TextileError, MeshError) as e:
@@ -144,8 +154,8 @@ def _tet(textile: Textile, options: VolumeOptions, vf: list[float]) -> VolumeMes
     from textile_fenicsx.volume.tet.mesher import tet_mesh
     from textile_fenicsx.volume.tet.options import TetOptions
 
-    tet = tet_mesh(textile, TetOptions(size=options.element_size, gap=options.gap, z_range=options.z_range,
-                                       memory_limit=options.memory_limit), MPI.COMM_SELF)
+    tet = tet_mesh(textile, TetOptions(size=options.element_size * options.scale, gap=options.gap,
+                                       z_range=options.z_range, memory_limit=options.memory_limit), MPI.COMM_SELF)
     assert tet is not None
     box = Box(tuple(float(v) for v in tet.lo), tuple(float(v) for v in tet.hi))
     yarn_vf = np.where(tet.phase > 0, np.asarray([0.0, *vf])[tet.phase], 0.0)

@@ -129,24 +129,25 @@ def classify(textile: Textile, box: Box, counts: tuple[int, int, int]) -> tuple[
     return phase, overlap, inside
 
 
-def default_grid(textile: Textile, box: Box, layers: int | None = None) -> tuple[tuple[int, int, int], VoxelRule,
-                                                                                dict[str, Any]]:
+def default_grid(textile: Textile, box: Box, layers: int | None = None,
+                 scale: float = 1.0) -> tuple[tuple[int, int, int], VoxelRule, dict[str, Any]]:
     """The default voxel counts of the textile's cell `box` (`layers` through the thickness where
     given), the rule they follow (voxel_sizes.default_sizes) and how they were chosen. Of the grids
     with up to PHASE_STEPS steps of 2 % more voxels in plan and of 4 % more through the thickness than
     the rule's (either way where the rule's grid was capped, none beyond DEFAULT_MAX_VOXELS), nearest
     the rule's first, the first whose voxels hold the model's yarn fraction within PHASE_TOLERANCE,
     else the nearest to it: a voxel's phase is read at its centre, and the grid's phase against the
-    yarns moves their volume, and Ex and Gxy with it, by whole percent (docs/volume.md)."""
+    yarns moves their volume, and Ex and Gxy with it, by whole percent (docs/volume.md). scale: the
+    sizes times this (a coarser or finer grid of the same rule, searched likewise, uncapped)."""
     rule = default_sizes(textile, box)
-    base = np.array(voxel_counts(box, rule.sizes, layers))
+    base = np.array(voxel_counts(box, tuple(h * scale for h in rule.sizes), layers))
     exact = union_fraction(textile, box)
     if not exact > 0:  # no yarn in the box: no phase to choose
         return (int(base[0]), int(base[1]), int(base[2])), rule, {"model_yarn_fraction": exact}
     capped = rule.sizes != rule.rule
     plan = range(-PHASE_STEPS[0] if capped else 0, PHASE_STEPS[0] + 1)
     through = [0] if layers is not None else range(-PHASE_STEPS[1] if capped else 0, PHASE_STEPS[1] + 1)
-    largest = max(DEFAULT_MAX_VOXELS, int(np.prod(base)))
+    largest = max(DEFAULT_MAX_VOXELS, int(np.prod(base))) if scale == 1 else np.inf
     grids: set[tuple[int, int, int]] = set()
     for j in plan:
         for k in through:
@@ -166,17 +167,18 @@ def default_grid(textile: Textile, box: Box, layers: int | None = None) -> tuple
 
 
 def voxel_mesh(textile: Textile, box: Box, size: float | Sequence[float] | None, yarn_vf: list[float],
-               layers: int | None = None) -> VolumeMesh:
+               layers: int | None = None, scale: float = 1.0) -> VolumeMesh:
     """The voxel mesh of the textile over the box at element size `size` [mm] (module docstring):
     one for every axis, (hx, hy, hz), or None for the default rule (default_sizes); `layers` voxels
-    through the thickness where given; yarn_vf: each yarn's intra-yarn fibre volume fraction."""
+    through the thickness where given; yarn_vf: each yarn's intra-yarn fibre volume fraction; scale:
+    the sizes, given or default, times this (volume/refinement.py's meshes)."""
     start = time.perf_counter()
     if size is None:
-        counts, rule, phase_search = default_grid(textile, box, layers)
+        counts, rule, phase_search = default_grid(textile, box, layers, scale)
         exact = phase_search["model_yarn_fraction"]
     else:
         rule, phase_search = default_sizes(textile, box), None
-        counts = voxel_counts(box, size, layers)
+        counts = voxel_counts(box, [h * scale for h in check_sizes(size)], layers)
         exact = union_fraction(textile, box)
     voxel: Sizes = tuple(float(h) for h in box.size / np.array(counts))  # type: ignore[assignment]
     log.info("voxel mesh: %d x %d x %d = %d voxels of %.3g x %.3g x %.3g mm", *counts, int(np.prod(counts)), *voxel)
@@ -198,6 +200,7 @@ def voxel_mesh(textile: Textile, box: Box, size: float | Sequence[float] | None,
                   for y, m, v, c in zip(textile.yarns, meshed, model, inside)],
         "periodicity": periodic_mismatch(points, box),
         "sizes": {"voxel_mm": list(voxel), "asked_mm": None if size is None else list(check_sizes(size)),
+                  "scale": scale,
                   "layers": layers, **rule.report(voxel), "model_yarn_fraction": exact,
                   "yarn_fraction_error": fraction_error, "phase": phase_search},
         "seconds": time.perf_counter() - start,
@@ -206,7 +209,9 @@ def voxel_mesh(textile: Textile, box: Box, size: float | Sequence[float] | None,
         log.warning("voxel mesh: %d voxels (%.4g mm^3) lie in two or more yarns; each went to the yarn it lies "
                     "deepest in (mesh_report.json: overlap)", overlap["voxels"], overlap["volume"])
     short = rule.short(voxel, default=size is None)
-    if short:
+    if short and scale > 1:  # a coarser mesh for an error estimate: expected
+        log.info("voxel mesh (coarser, for the error estimate): %s", short)
+    elif short:
         log.warning("voxel mesh: %s", short)
     elif abs(fraction_error) > PHASE_WARNING:  # a grid that meets the rule, at a poor phase
         log.warning("voxel mesh: the voxels' yarn fraction is %+.1f %% off the model's (%.4f): expect Ex off by "
