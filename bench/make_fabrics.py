@@ -14,7 +14,7 @@ about the built textile (type, yarn counts, domain box, section types, refine fl
 size and sha256. Everything is fixed in this script: re-running gives byte-identical files.
 --only rebuilds some models and leaves index.json alone; --list prints the names.
 
-The family (49 models):
+The family (65 models: 49, and 16 stacks of plies):
   2D weaves, CTextileWeave2D(n, n, spacing, thickness, refine), pattern by SwapPosition(x, y):
     every pattern at a middle setting (spacing 2.0, width/spacing 0.9, height/width 0.2, ellipse,
     refine off): plain, 2/2 twill, 3/1 twill, 4-harness crowfoot satin, 5- and 8-harness satin,
@@ -59,6 +59,15 @@ The family (49 models):
   Binders thicker than the 0.22 mm gap between weft columns (their physics is issue 27's item 4): the
   orthogonal weave with the reference binder 0.3 mm high (1.375 x 0.3, power 0.8), and the
   layer-to-layer weave (pattern 0011) with the larger elliptical binder (1.0 x 0.3, power 1.0).
+  Stacks of plies, TexGen's CTextileLayered (issue 74): each ply a 2D weave of the middle setting
+  (plain, 2/2 twill or 4-harness satin, built as above), added with AddLayer(ply, XYZ(dx, dy, k t))
+  (t: the plies' FabricThickness, 0.72 mm), the in-plane offset (dx, dy) given in yarn spacings
+  (2.0 mm): 0.25, 0.5, 0.75 and 1.3 spacings, negative ones, in x, y or both; 2, 3 and 4 plies;
+  plain, twill and satin plies, and mixed (a plain ply, 4 x 4 mm, over an 8 x 8 mm twill or satin).
+  The domain, AssignDomain(CDomainPlanes(...)): the largest ply's default domain in plan (TexGen's,
+  a half spacing before the origin), in z from 5 % of t below the first ply to 5 % above the last.
+  Most are nested by TexGen (NestLayers, which lowers each ply onto the one below and the domain's
+  top with them); a few are not (the plies then rest one fabric thickness apart).
 Names: x yarns run along x (TexGen's X yarns, spaced in y), y yarns along y. "w" is width/spacing,
 "h" height/width; "s2x3" a cell with y yarns 2.0 apart along x and x yarns 3.0 apart along y.
 """
@@ -252,6 +261,39 @@ def family():
         l2l("l2l_w2f3_b3_0011_binder1.0x0.3", (2, 3), 3, [[0, 0, 1, 1], [1, 1, 0, 0]],
             "l2l_w2f3_b3_0011 with the larger, elliptical binders of ortho_w2f3_binder1.0x0.3",
             binder=THICK_BINDER),
+    ]
+    specs += stack_family()
+    return specs
+
+
+def stack_spec(plies, nest=True, note=""):
+    """A stack of plies (TexGen's CTextileLayered): plies = [(pattern, dx, dy), ...], the first at
+    (0, 0), each ply a weave_spec(pattern) moved by (dx, dy) yarn spacings in the plane. nest: TexGen's
+    NestLayers after the domain is assigned."""
+    layers = [dict(weave=weave_spec(p), pattern=p, offset_spacings=[num(dx), num(dy)],
+                   offset=[num(dx * SPACING), num(dy * SPACING)]) for p, dx, dy in plies]
+    name = "stack_" + "_".join(p for p, _, _ in plies) + "".join(f"_{dx:g}x{dy:g}" for _, dx, dy in plies[1:])
+    return dict(name=name + ("" if nest else "_apart"), kind="layered", family="stack of plies", layers=layers,
+                nest=nest, note=note)
+
+
+def stack_family():
+    """The stacks of plies (issue 74): offsets at and beyond a spacing, negative ones, 2-4 plies,
+    plain, twill and satin plies, and mixed weaves."""
+    half = [("plain", 0, 0), ("plain", 0.5, 0)]
+    specs = [stack_spec(half, note="the plain stack moved by half a spacing of issue 74"),
+             stack_spec(half, nest=False, note="as the first, not nested: the plies one fabric thickness apart")]
+    for dx, dy in ((0.25, 0), (0.75, 0), (0, 0.5), (0.5, 0.5), (1.3, 0), (1.3, 0.7), (-0.5, 0), (-0.25, -1.3)):
+        specs.append(stack_spec([("plain", 0, 0), ("plain", dx, dy)]))
+    specs += [
+        stack_spec([("plain", 0, 0), ("plain", 0.5, 0), ("plain", 0.25, 0.75)], note="three plies"),
+        stack_spec([("plain", 0, 0), ("plain", 0.5, 0.5), ("plain", -0.25, 0.25), ("plain", 1.3, -0.6)],
+                   nest=False, note="four plies, not nested"),
+        stack_spec([("twill22", 0, 0), ("twill22", 0.5, 0.5)], note="2/2 twill plies"),
+        stack_spec([("satin4", 0, 0), ("satin4", 1.3, -0.5)], note="4-harness satin plies"),
+        stack_spec([("twill22", 0, 0), ("plain", 0.5, 0)], note="mixed: a plain ply, 4 x 4 mm, on an 8 x 8 mm twill"),
+        stack_spec([("plain", 0, 0), ("satin4", 0.25, 0.5), ("twill22", -0.5, 1.3)],
+                   note="mixed: plain, satin and twill plies"),
     ]
     return specs
 
@@ -474,8 +516,43 @@ def build_angleinterlock(tc, s, calls):
     return finish_3d(tc, t0, t, s, calls)
 
 
-BUILDERS = {"weave2d": build_weave2d, "orthogonal": build_orthogonal, "layertolayer": build_layertolayer,
-            "angleinterlock": build_angleinterlock}
+def default_box(t):
+    """The (lo, hi) corners of a TexGen textile's domain, from its mesh's nodes [mm]."""
+    pts = [(p.x, p.y, p.z) for p in t.GetDomain().GetMesh().GetNodes()]
+    return [num(min(p[k] for p in pts)) for k in range(3)], [num(max(p[k] for p in pts)) for k in range(3)]
+
+
+def build_layered(tc, s, calls):
+    """TexGen's stack: each ply built as build_weave2d builds it, added k ply thicknesses up and moved
+    in the plane; the domain the largest ply's default one in plan, the stack's height (5 % of a ply's
+    thickness below and above); then NestLayers where asked."""
+    stack = tc.CTextileLayered()
+    calls.append("s = CTextileLayered()")
+    plies, boxes = [], []
+    for k, layer in enumerate(s["layers"]):
+        ply = build_weave2d(tc, layer["weave"], calls)
+        plies.append(ply)  # kept alive while the stack is built
+        boxes.append(default_box(ply))
+        dx, dy = layer["offset"]
+        dz = num(k * layer["weave"]["thickness"])
+        stack.AddLayer(ply, tc.XYZ(dx, dy, dz))
+        calls.append(f"s.AddLayer(t, XYZ({fmt(dx)}, {fmt(dy)}, {fmt(dz)}))")
+    lo, hi = max(boxes, key=lambda b: (b[1][0] - b[0][0]) * (b[1][1] - b[0][1]))
+    t_ply = s["layers"][-1]["weave"]["thickness"]
+    z_top = sum(layer["weave"]["thickness"] for layer in s["layers"][:-1]) + t_ply
+    corners = [[lo[0], lo[1], num(-0.05 * s["layers"][0]["weave"]["thickness"])],
+               [hi[0], hi[1], num(z_top + 0.05 * t_ply)]]
+    stack.AssignDomain(tc.CDomainPlanes(tc.XYZ(*corners[0]), tc.XYZ(*corners[1])))
+    calls.append(f"s.AssignDomain(CDomainPlanes(XYZ({', '.join(map(fmt, corners[0]))}), "
+                 f"XYZ({', '.join(map(fmt, corners[1]))})))")
+    if s["nest"]:
+        stack.NestLayers()
+        calls.append("s.NestLayers()")
+    return stack
+
+
+BUILDERS = {"weave2d": build_weave2d, "layered": build_layered, "orthogonal": build_orthogonal,
+            "layertolayer": build_layertolayer, "angleinterlock": build_angleinterlock}
 
 
 def texgen_facts(t, s, path):
@@ -491,11 +568,25 @@ def texgen_facts(t, s, path):
     sections = {}  # <Section type=...> elements of the saved file (one per yarn, or per node)
     for el in ET.parse(path).getroot().iter("Section"):
         sections[el.get("type")] = sections.get(el.get("type"), 0) + 1
-    facts = dict(type=t.GetType(), n_yarns=t.GetNumYarns(), n_x_yarns=t.GetNumXYarns(),
-                 n_y_yarns=t.GetNumYYarns(), domain_type=dom.GetType(), domain_box=[lo, hi],
+    facts = dict(type=t.GetType(), n_yarns=t.GetNumYarns(), domain_type=dom.GetType(), domain_box=[lo, hi],
                  cell=[num(hi[0] - lo[0]), num(hi[1] - lo[1])],
                  yarn_section_types=dict(sorted(ysections.items())),
-                 section_elements_in_file=dict(sorted(sections.items())), refine=bool(t.GetRefine()))
+                 section_elements_in_file=dict(sorted(sections.items())))
+    if s["kind"] == "layered":  # CTextileLayered: its plies (pytexgen returns their yarn lists and offsets
+        # as opaque SWIG objects, so those are read from the saved file's <Layer> and <Offset> elements)
+        textile = ET.parse(path).getroot().find("Textile")
+        facts["layers"] = t.GetNumLayers()
+        facts["yarns_per_layer_in_file"] = [len(layer.findall("Yarn")) for layer in textile.findall("Layer")]
+        facts["offsets_in_file"] = [[num(float(v)) for v in o.get("value").split(",")]
+                                    for o in textile.findall("Offset")]
+        # TexGen's own count of each ply's yarn volume per area of fabric [mm^3/mm^2]: each yarn's
+        # GetRawYarnVolume (one repeat of its path, TexGen's polygon sections) over GetRawRepeatArea
+        facts["ply_volume_per_area_mm"] = [
+            num(sum(t.GetYarn(int(y.get("yarnindex"))).GetRawYarnVolume()
+                    / t.GetYarn(int(y.get("yarnindex"))).GetRawRepeatArea() for y in layer.findall("Yarn")))
+            for layer in textile.findall("Layer")]
+        return facts
+    facts.update(n_x_yarns=t.GetNumXYarns(), n_y_yarns=t.GetNumYYarns(), refine=bool(t.GetRefine()))
     if s["kind"] == "weave2d":
         facts["fabric_thickness"] = num(t.GetFabricThickness())
     else:
@@ -515,6 +606,8 @@ def params_of(s):
             p[key] = [list(c) for c in p[key]]
     if "binder_offsets" in p:
         p["binder_offsets"] = {str(k): v for k, v in p["binder_offsets"].items()}
+    if s["kind"] == "layered":  # a stack: each ply's weave as its own parameters
+        p["layers"] = [dict(layer, weave=params_of(layer["weave"])) for layer in p["layers"]]
     return p
 
 

@@ -1,7 +1,8 @@
 """The robustness sweep: the default command on a family of fabrics users bring.
 
 Every fabric of reference/fabrics/ (built with TexGen's own classes: 2D weaves loose to jammed,
-every section type, rectangular cells, unbalanced yarns, refine on and off; orthogonal,
+every section type, rectangular cells, unbalanced yarns, refine on and off; TexGen stacks of plies
+(CTextileLayered) at any offset and mixed; orthogonal,
 layer-to-layer and angle-interlock 3D weaves) and a few of our own builders' fabrics, each solved
 by `textile-fenicsx solve FILE --seed SEED --no-figures --out DIR` in a fresh process, as a user
 runs it. A case passes when the command exits 0: the contact solve converged and the corrected

@@ -270,6 +270,91 @@ def test_a_stack_of_plies_reads_back_as_the_same_stack(reference_dir, tmp_path):
             load_model(tmp_path / "bad.json")
 
 
+def _stack_index(reference_dir) -> dict:
+    """reference/fabrics/index.json's entries of the stacks (bench/make_fabrics.py), by file."""
+    index = json.loads((reference_dir / "fabrics" / "index.json").read_text())
+    return {m["file"]: m for m in index["models"] if m["cls"] == "CTextileLayered"}
+
+
+def _ply_volumes_per_area(model) -> list[float]:
+    """Each ply's yarn volume in the cell by the metrics' rays (what the check measures), over the
+    cell's area [mm^3/mm^2]."""
+    from textile_fenicsx.model.plies import ply_of
+
+    per_yarn = np.array(measure(model, 100)["yarn_volume"]["per_yarn"])
+    return (np.bincount(ply_of(model), weights=per_yarn) / model.cell.area).tolist()
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("name, yarns", [
+    ("stack_plain_plain_0.5x0", 8), ("stack_plain_plain_0.25x0", 8), ("stack_plain_plain_1.3x0.7", 8),
+    ("stack_plain_plain_-0.25x-1.3", 8), ("stack_plain_plain_0.5x0_apart", 8),
+    ("stack_plain_plain_plain_0.5x0_0.25x0.75", 12), ("stack_satin4_satin4_1.3x-0.5", 16),
+    # mixed: the 4 x 4 mm plain ply in the 8 x 8 mm cell, each of its 4 yarns twice over two periods
+    ("stack_twill22_plain_0.5x0", 8 + 8), ("stack_plain_satin4_twill22_0.25x0.5_-0.5x1.3", 8 + 8 + 8),
+])
+def test_texgens_stacks_hold_each_yarn_once_per_cell(name, yarns, reference_dir):
+    # Issue 74: TexGen's CTextileLayered at any offset (beyond a spacing, negative), 2-3 plies,
+    # mixed weaves, written by TexGen itself (bench/make_fabrics.py). Each ply's yarn volume per
+    # area of fabric, by our rays, against TexGen's own count at build time (index.json: the sum
+    # of each yarn's GetRawYarnVolume over its GetRawRepeatArea). 1 %: TexGen's sections are
+    # 40-point polygons (0.41 % below the ellipse) and our rays sample the cell at 100 x 100; a
+    # yarn counted twice is +100 % of that yarn, a missing copy -50 % of it, 25-50 % of a ply
+    entry = _stack_index(reference_dir)[f"{name}.tg3"]
+    model = read_tg3(reference_dir / "fabrics" / f"{name}.tg3")
+    assert model.plies == entry["texgen"]["layers"] and len(model.yarns) == yarns
+    assert (model.cell.lx, model.cell.ly) == tuple(entry["texgen"]["cell"])
+    ours = _ply_volumes_per_area(model)
+    assert ours == pytest.approx(entry["texgen"]["ply_volume_per_area_mm"], rel=0.01)
+
+
+@pytest.mark.serial
+def test_a_stack_whose_domain_cuts_its_plies_is_read_whole(reference_dir, tmp_path):
+    # the domain of a stack assigned for one ply, or before NestLayers, cuts the upper ply's
+    # crowns: TexGen's AssignDomain(the first ply's domain) on the half-spacing plain stack, z
+    # 1.414 -> 0.756 mm. The input's volumes were clipped to it and the corrected model's not
+    # (its z range holds its yarns), and the check saw the upper ply's yarns grow by +17000 %. Read
+    # whole: the same yarns and the same volume per ply as with the whole domain (to round-off),
+    # with the z range opened over the yarns (centrelines 0.9-1.26 mm, sections 0.36 mm high)
+    path = reference_dir / "fabrics" / "stack_plain_plain_0.5x0.tg3"
+    text = path.read_text()
+    top = 'Normal="0.000000000000e+00, 0.000000000000e+00, -1.000000000000e+00" d="'
+    start = text.index(top) + len(top)
+    cut = text[:start] + "-7.560000000000e-01" + text[text.index('"', start):]
+    (tmp_path / "cut.tg3").write_text(cut)
+    whole, clipped = read_tg3(path), read_tg3(tmp_path / "cut.tg3")
+    assert clipped.cell.z_range[1] >= max(y.nodes[:, 2].max() for y in clipped.yarns) + 0.18
+    assert _ply_volumes_per_area(clipped) == pytest.approx(_ply_volumes_per_area(whole), rel=1e-9)
+
+
+@pytest.mark.serial
+def test_a_stack_whose_plies_do_not_tile_its_cell_is_named(reference_dir, tmp_path):
+    # the mixed stack's domain cut to 6 x 8 mm: its 8 x 8 mm twill ply does not repeat in it
+    path = reference_dir / "fabrics" / "stack_twill22_plain_0.5x0.tg3"
+    text = path.read_text().replace('Normal="-1.000000000000e+00, 0.000000000000e+00, 0.000000000000e+00" '
+                                    'd="-7.000000000000e+00"',
+                                    'Normal="-1.000000000000e+00, 0.000000000000e+00, 0.000000000000e+00" '
+                                    'd="-5.000000000000e+00"', 1)
+    (tmp_path / "bad.tg3").write_text(text)
+    with pytest.raises(FormatError, match=r"ply 1 repeats every 8 x 8 mm, which does not divide the stack's cell "
+                                          r"of 6 x 8 mm"):
+        read_tg3(tmp_path / "bad.tg3")
+
+
+@pytest.mark.mpi
+def test_an_offset_stack_passes_the_default_command(reference_dir):
+    # issue 74's fabric: two plain plies, the second moved by half a spacing (1.0 mm) and nested
+    # by TexGen, solved as the default command solves it (seed 0.5 mm; 6 s serially): the check
+    # passes (volume per length within 1 %, no overlap left), with every yarn of each ply
+    from textile_fenicsx.pipeline.stages import Settings, run
+    from textile_fenicsx.plate.mesh.projected import MeshOptions
+
+    model = read_tg3(reference_dir / "fabrics" / "stack_plain_plain_0.5x0.tg3")
+    r = run(model, Settings(MeshOptions(0.5)))
+    assert r.verdict["passed"], r.verdict["failures"]
+    assert max(map(abs, r.metrics["yarn_volume_per_length_change"])) < 0.01
+
+
 @pytest.mark.serial
 @pytest.mark.parametrize("edit, message", [
     (lambda s: s.replace('<Yarn yarnindex="5" />', '<Yarn yarnindex="3" />', 1),

@@ -8,6 +8,7 @@ own pattern description) are skipped; anything else unknown is an error naming i
 
 import logging
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from textile_fenicsx.common.limits import (
     check_many,
 )
 from textile_fenicsx.model import fibres as fibre_data
+from textile_fenicsx.model.coupon import tile
 from textile_fenicsx.model.sections import (
     MAX_HYBRID_DEPTH,
     Ellipse,
@@ -323,6 +325,9 @@ def read_tg3(path, textile: str | None = None) -> Textile:
         if y.fibres is None or (default is not None and y.fibres.fibre_area() is None):
             y.fibres = default
     cell = _domain(el, yarns, where)
+    if layered:
+        yarns, sizes = _plies_over_cell(yarns, sizes or (len(yarns) // plies,) * plies, cell, where)
+        cell = _around_yarns(cell, yarns, where)
     try:
         woven_to = _woven_to(el, where)
         model = Textile(cell=cell, yarns=yarns, name=el.get("name") or path.stem, thickness=woven_to, plies=plies,
@@ -364,6 +369,75 @@ def _layers(el, indices: list[int], where: str) -> list[list[int]]:
     for k, o in enumerate(offsets, start=1):
         _floats(o.get("value"), f"{where}: <Offset> {k}", 2)
     return layers
+
+
+def _ply_period(ply: list[Yarn]) -> tuple[float, float] | None:
+    """The cell a ply repeats by, (lx, ly) [mm]: its yarns' two axis-aligned repeat vectors, the same
+    for every yarn of the ply (TexGen's 2D weaves); None for a ply with other repeats (left to the
+    stack's own periodicity check)."""
+    reps = {tuple(np.round(y.repeats, 9).ravel()) for y in ply}
+    if len(reps) != 1:
+        return None
+    r = ply[0].repeats
+    if len(r) != 2 or abs(r[0, 1]) + abs(r[1, 0]) + abs(r[0, 2]) + abs(r[1, 2]) > 0 or min(r[0, 0], r[1, 1]) <= 0:
+        return None
+    return float(r[0, 0]), float(r[1, 1])
+
+
+def _plies_over_cell(yarns: list[Yarn], sizes: tuple[int, ...], cell: Cell,
+                     where: str) -> tuple[list[Yarn], tuple[int, ...]]:
+    """Each ply's yarns once per cell of the stack. TexGen repeats every yarn by its own repeat
+    vectors, so a ply whose cell is a whole fraction of the stack's (a 4 x 4 mm plain ply on an 8 x
+    8 mm twill) fills it with its copies: the ply is tiled over the stack's cell (coupon.tile: each
+    yarn continued over the periods the cell holds, in as many parallel copies as it has room for,
+    named "<yarn> [i,j]"). Plies that repeat by the stack's cell are kept as read. The plies' sizes
+    after tiling are returned with the yarns."""
+    out: list[Yarn] = []
+    counts = []
+    start = 0
+    for k, n in enumerate(sizes):
+        ply = yarns[start:start + n]
+        start += n
+        period = _ply_period(ply)
+        if period is None or (np.isclose(period[0], cell.lx) and np.isclose(period[1], cell.ly)):
+            out += ply
+            counts.append(n)
+            continue
+        nx, ny = cell.lx / period[0], cell.ly / period[1]
+        if min(nx, ny) < 1 - 1e-9 or abs(nx - round(nx)) > 1e-6 or abs(ny - round(ny)) > 1e-6:
+            raise FormatError(f"{where}: ply {k + 1} repeats every {period[0]:g} x {period[1]:g} mm, which does not "
+                              f"divide the stack's cell of {cell.lx:g} x {cell.ly:g} mm (its <Domain>): the stack "
+                              "is not periodic in that cell; make the domain a common multiple of the plies' cells")
+        try:
+            own = Textile(Cell(period[0], period[1], cell.x0, cell.y0, cell.z_range), ply)
+            tiled = tile(own, int(round(nx)), int(round(ny))).yarns
+        except TextileError as e:
+            raise FormatError(f"{where}: ply {k + 1}: {e}") from None
+        log.info("%s: ply %d repeats every %g x %g mm, %d x %d times in the stack's cell: its %d yarns become %d",
+                 where, k + 1, period[0], period[1], round(nx), round(ny), n, len(tiled))
+        out += tiled
+        counts.append(len(tiled))
+    return out, tuple(counts)
+
+
+def _around_yarns(cell: Cell, yarns: list[Yarn], where: str) -> Cell:
+    """A stack's cell with its z range (the <Domain>'s z planes) opened to hold every yarn whole:
+    the plies are the model, and the domain given to the stack (assigned before NestLayers, or for
+    one ply) can cut the upper plies' crowns, which the metrics would clip away from the input and
+    not from the corrected model (whose z range holds its yarns: correction/correct.py). The yarns
+    reach the master nodes' z -+ half the tallest section [mm]; where that passes a plane, the z
+    range is opened to it, by the margin the correction gives its own (a whole section height)."""
+    if cell.z_range is None:
+        return cell
+    z = np.concatenate([y.nodes[:, 2] for y in yarns])
+    tallest = max(s.height for y in yarns for s in y.section.sections())
+    z0, z1 = cell.z_range
+    if float(z.min()) - tallest / 2 >= z0 - 1e-9 and float(z.max()) + tallest / 2 <= z1 + 1e-9:
+        return cell
+    lo, hi = float(z.min()) - tallest, float(z.max()) + tallest
+    log.warning("%s: the domain's z planes (%.4g to %.4g mm) cut the plies' yarns (%.4g to %.4g mm); the stack is "
+                "read whole, its z range opened to them", where, z0, z1, lo, hi)
+    return replace(cell, z_range=(min(z0, lo), max(z1, hi)))
 
 
 def _woven_to(el, where: str) -> float | None:
