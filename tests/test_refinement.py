@@ -171,6 +171,13 @@ def test_homogenise_command_on_a_model_writes_the_estimate(tmp_path):
     assert r.returncode == 2 and "--accuracy, --yarn-vf need a model" in r.stderr, r.stderr[-2000:]
     assert not (tmp_path / "bad").exists()
     assert np.isfinite(est["quantities"]["Gxy"]["relative_error"])
+    # `permeability MODEL`: the same, permeability.json's error_estimate on Kxx, Kyy, Kzz
+    r = subprocess.run(["textile-fenicsx", "permeability", str(model), "--size", "0.4", "0.4", "0.1", "--yarn-vf",
+                        "0.6", "--fibre-radius", "0.0035", "--out", str(tmp_path / "k")], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads((tmp_path / "k" / "permeability.json").read_text())
+    assert set(doc["error_estimate"]["quantities"]) == {"Kxx", "Kyy", "Kzz"} and "estimated error" in r.stdout
 
 
 # The converged values of TexGen's plain weave and 4-harness satin (E-glass in epoxy, yarn Vf 0.65, at
@@ -193,3 +200,27 @@ def test_the_default_voxels_estimate_brackets_the_converged_value(comm, name):
         q = r.error["quantities"][k]
         assert abs(q["value"] - converged) <= q["error"] + uncertainty, (k, q, converged)
         assert q["error"] >= SCATTER * abs(q["value"]), "at least the voxels' scatter"
+
+
+@pytest.mark.mpi
+def test_the_permeability_of_a_model_estimates_its_error(comm, tmp_path):
+    # the cross-ply's permeability on voxels of 0.4 x 0.4 x 0.1 mm and 1.5 x coarser: the diagonal's
+    # estimate, Kxx = Kyy on both (the balanced cross-ply's quarter turn) so their estimates agree,
+    # each error at least the voxels' floor, the same on every rank; permeability.json carries it
+    import textile_fenicsx as tfx
+    from textile_fenicsx.volume.stage import VolumeOptions
+
+    k = tfx.permeability_model(cross_ply(), VolumeOptions("voxel", (0.4, 0.4, 0.1), yarn_vf=0.6),
+                               fibre_radius=0.0035, comm=comm)
+    q = k.error["quantities"]
+    assert set(q) == {"Kxx", "Kyy", "Kzz"} and len(k.error["meshes"]) == 2
+    assert q["Kxx"]["value"] == pytest.approx(q["Kyy"]["value"], rel=1e-6)
+    assert q["Kxx"]["error"] == pytest.approx(q["Kyy"]["error"], rel=1e-4)
+    for name, i in (("Kxx", 0), ("Kzz", 2)):
+        assert q[name]["value"] == pytest.approx(k.K[i, i], rel=1e-12) and q[name]["value"] > 0
+        assert q[name]["error"] >= SCATTER * q[name]["value"] * (1 - 1e-12)
+    assert comm.allgather(q["Kzz"]["error"]) == [q["Kzz"]["error"]] * comm.size
+    out = tmp_path / "k" if comm.size == 1 else None
+    if out is not None:
+        doc = json.loads(k.write(out, comm).read_text())
+        assert doc["error_estimate"]["quantities"]["Kzz"]["error"] == q["Kzz"]["error"]

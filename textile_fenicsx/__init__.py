@@ -23,6 +23,7 @@ from textile_fenicsx.api import (  # noqa: E402
     homogenise_model,
     permeability,
     permeability_curve,
+    permeability_model,
     read,
     show_progress,
     solve,
@@ -30,5 +31,5 @@ from textile_fenicsx.api import (  # noqa: E402
 )
 from textile_fenicsx.version import __version__  # noqa: E402
 
-__all__ = ["__version__", "build", "homogenise", "homogenise_model", "permeability", "permeability_curve", "read",
-           "show_progress", "solve", "volume_mesh"]
+__all__ = ["__version__", "build", "homogenise", "homogenise_model", "permeability", "permeability_curve",
+           "permeability_model", "read", "show_progress", "solve", "volume_mesh"]

@@ -28,8 +28,8 @@ if TYPE_CHECKING:
     from textile_fenicsx.pipeline.stages import Run
     from textile_fenicsx.volume.stage import CellMesh
 
-__all__ = ["build", "homogenise", "homogenise_model", "permeability", "permeability_curve", "read", "show_progress",
-           "solve", "volume_mesh"]
+__all__ = ["build", "homogenise", "homogenise_model", "permeability", "permeability_curve", "permeability_model",
+           "read", "show_progress", "solve", "volume_mesh"]
 
 
 def read(path) -> Textile:
@@ -142,6 +142,26 @@ def permeability(volume, yarns="gebart", fibre_radius=None, comm=None, **options
     if fields is None:
         fields = read_volume(volume, comm or MPI.COMM_WORLD)
     return _permeability(fields, PermeabilityOptions(yarns=yarns, fibre_radius=fibre_radius, **options))
+
+
+def permeability_model(textile, volume=None, yarns="gebart", fibre_radius=None, comm=None,
+                       accuracy: float | None = None, **options) -> Permeability:
+    """The permeability of a model (a Textile or a model file's path) with the error of Kxx, Kyy and
+    Kzz: it is meshed in voxels by `volume` (VolumeOptions; default the voxel rule) and RATIO times
+    coarser and, with an `accuracy` asked (a fraction), finer until within it (volume/refinement.py).
+    The finest mesh's result, its `.error` the estimate, written to permeability.json's
+    "error_estimate". yarns, fibre_radius and other PermeabilityOptions as `permeability`'s."""
+    from mpi4py import MPI
+
+    from textile_fenicsx.flow.effective import PermeabilityOptions
+    from textile_fenicsx.flow.estimate import permeability_model as _permeability_model
+    from textile_fenicsx.volume.stage import VolumeOptions
+
+    if not hasattr(textile, "yarns"):
+        textile = read(textile)
+    return _permeability_model(textile, volume or VolumeOptions(),
+                               PermeabilityOptions(yarns=yarns, fibre_radius=fibre_radius, **options), accuracy,
+                               comm or MPI.COMM_WORLD)
 
 
 def permeability_curve(run: Run, yarns="gebart", fibre_radius=None, size: float | tuple[float, ...] | None = None,

@@ -289,9 +289,7 @@ def _permeability_command(subparsers: Subparsers) -> None:
     p = subparsers.add_parser("permeability", help="permeability tensor of a meshed periodic cell (Stokes-Brinkman)",
                               description=volume_commands.PERMEABILITY_DESCRIPTION)
     p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5); or a model "
-                   "(.tg3, .toml, .json), meshed here by --kind and the volume options, with the error estimate")
-    p.add_argument("--kind", choices=["voxel", "tet"], default="voxel",
-                   help="with a model: voxel hexahedra (default) or conforming tetrahedra")
+                   "(.tg3, .toml, .json), meshed here in voxels by the volume options, with the error estimate")
     volume_commands.add_volume_options(p)
     p.add_argument("--accuracy", type=float, metavar="PERCENT",
                    help="with a model: refine the mesh until every property's estimated error is within PERCENT %% "

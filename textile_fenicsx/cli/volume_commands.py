@@ -209,25 +209,61 @@ PERMEABILITY_DESCRIPTION = (
     "written. Gebart's laws are an upper bound for random packings; the flow is slow (Stokes).")
 
 
+MODEL_SUFFIXES = (".tg3", ".toml", ".json")
+
+
+def model_volume(args: argparse.Namespace, command: str) -> tuple[VolumeOptions | None, float | None]:
+    """The voxel mesh's options where `command` was given a model to mesh (None for a mesh), and the
+    accuracy asked as a fraction; options that need a model are refused on a mesh (before any work)."""
+    if args.accuracy is not None and not 0 < args.accuracy < 100:
+        raise TextileError(f"--accuracy is a percentage between 0 and 100, got {args.accuracy:g}")
+    accuracy = None if args.accuracy is None else args.accuracy / 100
+    if Path(args.mesh).suffix.lower() in MODEL_SUFFIXES:
+        return options_from(args, "voxel", args.size, args.layers), accuracy
+    given = [flag for flag, value in (("--accuracy", args.accuracy), ("--size", args.size), ("--layers", args.layers),
+                                      ("--yarn-vf", args.yarn_vf), ("--z-range", args.z_range), ("--gap", args.gap))
+             if value is not None]
+    if given:
+        raise TextileError(f"{', '.join(given)} need a model ({', '.join(MODEL_SUFFIXES)}) to mesh, not the mesh "
+                           f"{args.mesh}: give {command} the model file")
+    return None, accuracy
+
+
+def _finish(result: Any, out: Path, accuracy: float | None, comm: Any) -> int:
+    """Print the result's summary line and file; exit 1 where the accuracy asked was not reached."""
+    if comm.rank == 0:
+        print(result.summary())
+        print(out)
+    if result.error is None or result.error["accuracy_met"]:
+        return 0
+    if comm.rank == 0:
+        worst = max(result.error["quantities"].items(), key=lambda q: q[1]["relative_error"])
+        print(f"textile-fenicsx: error: accuracy {100 * (accuracy or 0):g} % not reached: {worst[0]}'s estimated "
+              f"error is {100 * worst[1]['relative_error']:.2g} % after {len(result.error['meshes'])} meshes "
+              f"({result.error['stopped']}); {out.name} holds the finest mesh's values and their estimate. Ask a "
+              "larger --accuracy, or give --memory-limit where the memory guard stopped it", file=sys.stderr)
+    return 1
+
+
 def permeability(args: argparse.Namespace) -> int:
     from mpi4py import MPI
 
     from textile_fenicsx.api import permeability as run_permeability
+    from textile_fenicsx.api import permeability_model
     from textile_fenicsx.flow.effective import PermeabilityOptions
 
     comm = MPI.COMM_WORLD
     PermeabilityOptions(args.yarn_permeability, args.fibre_radius, args.degree, solver=args.solver)  # refused early
+    volume, accuracy = model_volume(args, "permeability")
+    settings = dict(degree=args.degree, memory_limit=args.memory_limit, solver=args.solver)
     with claim_output(args.out, inputs=[args.mesh], names=PERMEABILITY_FILES, force=True, comm=comm):
-        result = run_permeability(args.mesh, args.yarn_permeability, args.fibre_radius, comm, degree=args.degree,
-                                  memory_limit=args.memory_limit, solver=args.solver)
+        if volume is not None:
+            result = permeability_model(args.mesh, volume, args.yarn_permeability, args.fibre_radius, comm, accuracy,
+                                        **settings)
+        else:
+            result = run_permeability(args.mesh, args.yarn_permeability, args.fibre_radius, comm, **settings)
         result.write(args.out, comm)
-    if comm.rank == 0:
-        print(result.summary())
-        print(Path(args.out) / "permeability.json")
-    return 0
-
-
-MODEL_SUFFIXES = (".tg3", ".toml", ".json")
+    return _finish(result, Path(args.out) / "permeability.json", accuracy, comm)
 
 
 def homogenise(args: argparse.Namespace) -> int:
@@ -235,40 +271,16 @@ def homogenise(args: argparse.Namespace) -> int:
 
     from textile_fenicsx.api import homogenise as run_homogenise
     from textile_fenicsx.api import homogenise_model
-
-    comm = MPI.COMM_WORLD
     from textile_fenicsx.homogenisation import material
 
+    comm = MPI.COMM_WORLD
     material(args.fibre), material(args.matrix)  # a bad name or file is refused before any work
-    model = Path(args.mesh).suffix.lower() in MODEL_SUFFIXES
-    volume = options_from(args, "voxel", args.size, args.layers) if model else None
-    if not model:
-        given = [flag for flag, value in (("--accuracy", args.accuracy), ("--size", args.size),
-                                          ("--layers", args.layers), ("--yarn-vf", args.yarn_vf),
-                                          ("--z-range", args.z_range), ("--gap", args.gap)) if value is not None]
-        if given:
-            raise TextileError(f"{', '.join(given)} need a model ({', '.join(MODEL_SUFFIXES)}) to mesh, not the mesh "
-                               f"{args.mesh}: give homogenise the model file")
-    if args.accuracy is not None and not 0 < args.accuracy < 100:
-        raise TextileError(f"--accuracy is a percentage between 0 and 100, got {args.accuracy:g}")
+    volume, accuracy = model_volume(args, "homogenise")
     settings = dict(degree=args.degree, conduction=not args.no_conduction, memory_limit=args.memory_limit)
     with claim_output(args.out, inputs=[args.mesh], names=("stiffness.json",), force=True, comm=comm):
         if volume is not None:
-            result = homogenise_model(args.mesh, volume, args.fibre, args.matrix, comm,
-                                      None if args.accuracy is None else args.accuracy / 100, **settings)
+            result = homogenise_model(args.mesh, volume, args.fibre, args.matrix, comm, accuracy, **settings)
         else:
             result = run_homogenise(args.mesh, args.fibre, args.matrix, comm, **settings)
         result.write(args.out, comm)
-    if comm.rank == 0:
-        print(result.summary())
-        print(Path(args.out) / "stiffness.json")
-    if result.error is not None and not result.error["accuracy_met"]:
-        if comm.rank == 0:
-            worst = max(result.error["quantities"].items(), key=lambda q: q[1]["relative_error"])
-            print(f"textile-fenicsx: error: accuracy {args.accuracy:g} % not reached: {worst[0]}'s estimated error "
-                  f"is {100 * worst[1]['relative_error']:.2g} % after {len(result.error['meshes'])} meshes "
-                  f"({result.error['stopped']}); stiffness.json holds the finest mesh's values and their estimate. "
-                  "Ask a larger --accuracy, or give --memory-limit where the memory guard stopped it",
-                  file=sys.stderr)
-        return 1
-    return 0
+    return _finish(result, Path(args.out) / "stiffness.json", accuracy, comm)

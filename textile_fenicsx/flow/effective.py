@@ -29,6 +29,7 @@ from textile_fenicsx.flow import gebart
 from textile_fenicsx.flow.problem import DIRECT, ITERATIVE, FlowCellProblem
 from textile_fenicsx.homogenisation.periodic import Box, bounding_box
 from textile_fenicsx.volume.files import VolumeFields
+from textile_fenicsx.volume.refinement import error_summary
 
 __all__ = ["DEFAULT_FIBRE_RADIUS", "Permeability", "PermeabilityOptions", "permeability", "yarn_permeability"]
 
@@ -91,6 +92,7 @@ class Permeability:
     options: dict
     velocities: list = field(default_factory=list, repr=False)
     mu: float = 1.0
+    error: dict | None = None  # the discretisation error's estimate (volume/refinement.py), where made
 
     @property
     def K_m2(self) -> np.ndarray:
@@ -118,14 +120,15 @@ class Permeability:
         solve = f", {'/'.join(map(str, iterations))} iterations" if any(n > 1 for n in iterations) else ""
         return (f"Kxx {self.K_m2[0, 0]:.4g} Kyy {self.K_m2[1, 1]:.4g} Kzz {self.K_m2[2, 2]:.4g} m^2 "
                 f"(principal {values[0]:.4g}, {values[1]:.4g}, {values[2]:.4g}), Vf {self.vf:.3f}, "
-                f"porosity {self.porosity:.3f}; {self.dofs} dofs{solve}, {self.seconds['total']:.1f} s")
+                f"porosity {self.porosity:.3f}; {self.dofs} dofs{solve}, {self.seconds['total']:.1f} s"
+                + error_summary(self.error))
 
     def document(self) -> dict:
         values, vectors = self.principal
         return {"K_m2": self.K_m2.tolist(), "K_mm2": self.K.tolist(),
                 "principal_m2": (values * MM2_TO_M2).tolist(), "principal_directions": vectors.T.tolist(),
                 "vf": self.vf, "porosity": self.porosity, "dofs": self.dofs, "seconds": self.seconds,
-                "checks": self.checks, "options": self.options,
+                "checks": self.checks, "options": self.options, "error_estimate": self.error,
                 "definition": "K_ij = mu <u_i> for a unit mean pressure gradient along -j (Darcy: <u> = -K/mu grad P); "
                               "periodic in x, y and z; Stokes in the pores, Brinkman in the yarns with the "
                               "fluid's viscosity"}

@@ -26,6 +26,7 @@ from textile_fenicsx.homogenisation.elasticity import ElasticCellProblem
 from textile_fenicsx.homogenisation.fields import CellFields, yarn_fields
 from textile_fenicsx.homogenisation.materials import material
 from textile_fenicsx.homogenisation.periodic import Box, bounding_box
+from textile_fenicsx.volume.refinement import error_summary
 
 __all__ = ["Homogenised", "HomogeniseOptions", "estimated_bytes", "homogenise", "homogenise_fields"]
 
@@ -92,11 +93,7 @@ class Homogenised:
                 f"Vf {self.fibre_fraction:.3f}")
         if self.K is not None:
             text += f"; kx {self.K[0, 0]:.3g} ky {self.K[1, 1]:.3g} kz {self.K[2, 2]:.3g} W/(m K)"
-        if self.error is not None:
-            rel = {k: q["relative_error"] for k, q in self.error["quantities"].items()}
-            worst = max(rel, key=lambda k: rel[k])
-            text += f"; estimated error at most {100 * rel[worst]:.2g} % ({worst})"
-        return text
+        return text + error_summary(self.error)
 
     def write(self, out, comm=None) -> Path:
         """stiffness.json in the folder `out` (created if missing; written whole, by rank 0)."""
