@@ -102,14 +102,14 @@ def test_converge_refines_until_the_accuracy_is_met():
 
 @pytest.mark.mpi
 def test_homogenising_a_model_estimates_its_error(comm):
-    # the cross-ply at its default voxels and 1.5 x coarser, first order: the estimate is the same on
+    # the cross-ply on voxels of 0.2 x 0.2 x 0.05 mm and 1.5 x coarser, first order: the estimate is the same on
     # every rank, its extrapolated value is f1 + (f1 - f2) / (r - 1) from the meshes reported, and the
     # value on a mesh 1.5 x finer lies within value +- error (the bound the estimate claims)
     import textile_fenicsx as tfx
     from textile_fenicsx.volume.stage import VolumeOptions
 
-    r = tfx.homogenise_model(cross_ply(), VolumeOptions("voxel", yarn_vf=0.6), comm=comm, degree=1,
-                             conduction=False)
+    r = tfx.homogenise_model(cross_ply(), VolumeOptions("voxel", (0.2, 0.2, 0.05), yarn_vf=0.6), comm=comm,
+                             degree=1, conduction=False)
     est = r.error
     assert [m["scale"] for m in est["meshes"]] == [RATIO, 1] and est["accuracy_met"]
     assert comm.allgather(est["quantities"]["Ex"]["error"]) == [est["quantities"]["Ex"]["error"]] * comm.size
@@ -122,8 +122,8 @@ def test_homogenising_a_model_estimates_its_error(comm):
         coarse = q["value"] - (q["extrapolated"] - q["value"]) * (ratio - 1)
         gci = 3 * abs(q["value"] - coarse) / (ratio - 1)
         assert q["error"] == pytest.approx(max(gci, SCATTER * abs(q["value"])), rel=1e-9), "GCI, or the floor"
-    finer = tfx.homogenise(tfx.volume_mesh(cross_ply(), "voxel", comm=comm, yarn_vf=0.6, scale=1 / RATIO), comm=comm,
-                           degree=1, conduction=False)
+    finer = tfx.homogenise(tfx.volume_mesh(cross_ply(), "voxel", (0.2, 0.2, 0.05), comm=comm, yarn_vf=0.6,
+                                           scale=1 / RATIO), comm=comm, degree=1, conduction=False)
     for k in ("Ex", "Ez", "Gxy"):
         q = est["quantities"][k]
         assert abs(finer.constants[k] - q["value"]) <= q["error"], (k, finer.constants[k], q)
