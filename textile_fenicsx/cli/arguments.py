@@ -153,6 +153,12 @@ def _solve_command(subparsers: Subparsers) -> None:
         "(the iteration log) and the exit code is 1. Exit codes: 0 done, 1 the run failed, 2 bad input, "
         "130 interrupted (no output written).")
     p.add_argument("input", help="model file or named weave")
+    p.add_argument("--shear", type=float, metavar="DEG",
+                   help="a named 2D weave sheared by DEG degrees: its wefts turn from y toward x at fixed spacings "
+                   "along the yarns, as TexGen's CShearedTextileWeave2D (refused at or beyond the angle where the "
+                   "yarns jam; docs/shear.md)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="a named weave's builder option, e.g. --set width=1.4 (as build's --set)")
     p.add_argument("--out", metavar="DIR", help="write the corrected model, metrics, fields, surfaces, figures")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--json", action="store_true",
@@ -245,16 +251,22 @@ def _volume_mesh_command(subparsers: Subparsers) -> None:
     p.set_defaults(run=volume_commands.volume_mesh)
 
 
-def _homogenise_command(subparsers: Subparsers) -> None:
-    """`homogenise`: the effective stiffness and conductivity of a meshed cell."""
-    p = subparsers.add_parser("homogenise", help="effective stiffness and conductivity of a meshed periodic cell",
-                              description=volume_commands.HOMOGENISE_DESCRIPTION)
+def _mesh_or_model(p: argparse.ArgumentParser) -> None:
+    """MESH (a volume.xdmf, or a model to mesh in voxels with the error estimate), the volume
+    options and --accuracy (homogenise, permeability)."""
     p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5); or a model "
                    "(.tg3, .toml, .json), meshed here in voxels by the volume options, with the error estimate")
     volume_commands.add_volume_options(p)
     p.add_argument("--accuracy", type=float, metavar="PERCENT",
                    help="with a model: refine the mesh until every property's estimated error is within PERCENT %% "
                    "(default: the mesh asked and one coarser, for the estimate)")
+
+
+def _homogenise_command(subparsers: Subparsers) -> None:
+    """`homogenise`: the effective stiffness and conductivity of a meshed cell."""
+    p = subparsers.add_parser("homogenise", help="effective stiffness and conductivity of a meshed periodic cell",
+                              description=volume_commands.HOMOGENISE_DESCRIPTION)
+    _mesh_or_model(p)
     p.add_argument("--fibre", default="e-glass", metavar="NAME|FILE",
                    help="fibre material: e-glass (default), t300, or a TOML file (isotropic E, nu or transversely "
                    "isotropic E1 E2 G12 nu12 G23; conductivities k or k1 k2)")
@@ -288,12 +300,7 @@ def _permeability_command(subparsers: Subparsers) -> None:
     """`permeability`: the permeability tensor of a meshed cell."""
     p = subparsers.add_parser("permeability", help="permeability tensor of a meshed periodic cell (Stokes-Brinkman)",
                               description=volume_commands.PERMEABILITY_DESCRIPTION)
-    p.add_argument("mesh", help="the volume mesh: volume.xdmf written by volume-mesh (with its .h5); or a model "
-                   "(.tg3, .toml, .json), meshed here in voxels by the volume options, with the error estimate")
-    volume_commands.add_volume_options(p)
-    p.add_argument("--accuracy", type=float, metavar="PERCENT",
-                   help="with a model: refine the mesh until every property's estimated error is within PERCENT %% "
-                   "(default: the mesh asked and one coarser, for the estimate)")
+    _mesh_or_model(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for permeability.json and the flow's "
                    "files (created if missing)")
     p.add_argument("--yarn-permeability", type=_yarn_permeability, default="gebart", metavar="gebart|impermeable|K",
