@@ -206,7 +206,8 @@ def _solve_command(subparsers: Subparsers) -> None:
     p.add_argument("--mould", type=_mould, default="auto", metavar="auto|none|T",
                    help="solve the fabric in a mould of thickness T [mm], its cavity centred on the model's "
                    "mid-plane, closing only on a fabric that comes out thicker (exact method); auto (default): "
-                   "the thickness a 3D weave is woven to (TexGen's FabricThickness), none for other fabrics")
+                   "the thickness a 3D weave is woven to (TexGen's FabricThickness), made room in with a warning "
+                   "where its yarns stack thicker (DESIGN.md 5), none for other fabrics")
     _plies_arguments(p)
     p.add_argument("--compaction", type=float, metavar="K",
                    help="press the relaxed fabric further, its yarns flattening by Van Wyk's law p = K (phi^3 - "

@@ -160,14 +160,36 @@ def _named_weave(text: str) -> bool:
     return text in PATTERNS or text == "orthogonal"
 
 
-def load_input(text: str):
-    """A model from a file (.tg3, .toml, .json) or a named weave with its default sizes."""
+def load_input(text: str, options: dict | None = None):
+    """A model from a file (.tg3, .toml, .json) or a named weave with its default sizes, or the
+    builder's `options` (solve's --shear and --set)."""
     from textile_fenicsx.io.config import load_model
     from textile_fenicsx.model.weaves import build
 
     if _named_weave(text):
-        return build(text)
+        try:
+            return build(text, **(options or {}))
+        except TypeError as e:
+            raise TextileError(f"weave {text}: {e}") from None
+    if options:
+        raise TextileError(f"--shear and --set apply to a named weave; the model file {text} carries its own sizes "
+                           "and lattice")
     return load_model(text)  # checked against the size bounds by the readers
+
+
+def _weave_options(args) -> dict:
+    """A named weave's builder options from solve's --set KEY=VALUE and --shear DEG."""
+    options = {}
+    for item in getattr(args, "set", None) or []:
+        if "=" not in item:
+            raise TextileError(f"--set expects KEY=VALUE, got {item!r}")
+        key, value = item.split("=", 1)
+        options[key.strip()] = _parse_value(value.strip())
+    if getattr(args, "shear", None) is not None:
+        if args.input == "orthogonal":
+            raise TextileError("--shear applies to the 2D weaves (plain, twill, satin, crowfoot_satin), not orthogonal")
+        options["shear"] = args.shear
+    return options
 
 
 def _compaction(args) -> dict:
@@ -212,7 +234,12 @@ def solve(args) -> int:
     volume = volume_commands.solve_options(args)  # the volume mesh after the solve, or None
     flow = volume_commands.flow_options(args, volume)  # its permeability, or None
     t = time.perf_counter()
-    textile = _repeated(_stacked(with_yarn_vf(load_input(args.input), args.yarn_vf), args), args, settings.mesh,
+    model = load_input(args.input, _weave_options(args))
+    if volume is not None and model.cell.shift:  # refused before the solve, not after it
+        from textile_fenicsx.volume.stage import refuse_sheared
+
+        refuse_sheared(model)
+    textile = _repeated(_stacked(with_yarn_vf(model, args.yarn_vf), args), args, settings.mesh,
                         comm.size, settings.solver.bytes_per_dof)
     if volume is not None and settings.compaction is not None:  # the pressed yarns are denser: their
         volume = replace(volume, yarn_vf=None)  # fibre data (--yarn-vf's fibres, kept) gives their fraction

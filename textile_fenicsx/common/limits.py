@@ -29,6 +29,7 @@ MIN_SECTION_POINTS, MAX_SECTION_POINTS = 8, 4_096  # points per section of the y
 MAX_SURFACE_POINTS = 30_000_000    # points of all yarn surfaces (stations x section points), ~4 GB of triangles
 MAX_PATTERN = 100                  # a weave pattern's warps or wefts; harness, over, under, layers, stacks, columns
 MAX_REPEATS = 100                  # coupon repeats along x or y
+MAX_SHEAR_RATIO = 3.7320508075688772  # a sheared cell's |shift| / ly: tan 75 degrees (beyond, a degenerate lattice)
 MAX_GRID = 1_000                   # rays per cell side of the metrics (200 is the reference; 1000: ~30 s)
 MAX_ITERATIONS = 10_000            # contact iterations
 MAX_MEMORY_GB = 1e6                # a --memory-limit

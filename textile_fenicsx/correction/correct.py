@@ -138,8 +138,8 @@ class _Crowns:
         out = evaluate(w, xy)
         off = np.isnan(out)  # the same on every rank
         if np.any(off):
-            out[off] = evaluate(w, nearest_images(w.function_space.mesh, xy[off], (self.cell.lx, self.cell.ly)),
-                                extrapolate=True)
+            moves = self.cell.neighbours() if self.cell.shift else (self.cell.lx, self.cell.ly)
+            out[off] = evaluate(w, nearest_images(w.function_space.mesh, xy[off], moves), extrapolate=True)
         return out
 
     def centre(self, s: np.ndarray, xy: np.ndarray) -> np.ndarray:

@@ -274,7 +274,7 @@ def textile_from_dict(d: dict, where: str = "model") -> Textile:
     if "cell" not in d:
         raise FormatError(f"{where}: a yarn list needs a [cell] table")
     c = d["cell"]
-    _keys(c, f"{where}.cell", {"lx", "ly", "x0", "y0", "z_range", "periodic"}, {"lx", "ly"})
+    _keys(c, f"{where}.cell", {"lx", "ly", "x0", "y0", "z_range", "periodic", "shift"}, {"lx", "ly"})
     try:
         given: dict[str, Any] = {k: (tuple(v) if k == "z_range" else v) for k, v in c.items()}
         cell = Cell(**given)
@@ -314,6 +314,8 @@ def textile_to_dict(t: Textile) -> dict:
         cell["z_range"] = list(c.z_range)
     if not c.periodic:
         cell["periodic"] = False
+    if c.shift:  # a sheared cell's lattice (docs/shear.md)
+        cell["shift"] = c.shift
     return {"name": t.name, "cell": {k: (float(v) if not isinstance(v, (list, bool)) else v) for k, v in cell.items()},
             "resolution": {"spacing": t.resolution.spacing, "section_points": t.resolution.section_points,
                            "per_segment": t.resolution.per_segment},

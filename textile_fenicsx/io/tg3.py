@@ -238,36 +238,81 @@ def _domain(textile_el, yarns: list[Yarn], where: str) -> Cell:
     dom = textile_el.find("Domain")
     if dom is None:
         reps = yarns[0].repeats
-        if len(reps) != 2 or abs(reps[0, 1]) + abs(reps[1, 0]) > 0:
-            raise FormatError(f"{where}: no <Domain> and no axis-aligned repeats to define the unit cell")
+        if len(reps) != 2 or abs(reps[0, 1]) > 0 or reps[1, 1] == 0:
+            raise FormatError(f"{where}: no <Domain> and no repeats (a1 along x, a2 across it) to define the unit cell")
         try:
-            return Cell(float(reps[0, 0]), float(reps[1, 1]))
+            return Cell(float(reps[0, 0]), float(reps[1, 1]), shift=float(reps[1, 0]))
         except TextileError as e:
             raise FormatError(f"{where}: repeats as the unit cell: {e}") from None
     if dom.get("type") != "CDomainPlanes":
         raise FormatError(f"{where}: unsupported domain type {dom.get('type')!r} (only CDomainPlanes)")
     lo: list = [None] * 3  # plane offsets per axis, None until a plane bounds it
     hi: list = [None] * 3
+    tilt: list = [None, None]  # the x sides' dx/dy (TexGen's sheared domain leans them along a2)
     for plane in dom.findall("Plane"):
         n = _floats(plane.get("Normal"), f"{where} Domain Plane Normal", 3)
         d = _attr(plane, "d", f"{where} Domain Plane")
+        big = np.abs(n) > 1e-12
+        if big[0] and big[1] and not big[2]:  # an x side leaning along a2: x = (d - ny y) / nx
+            side = 0 if n[0] > 0 else 1
+            tilt[side] = -n[1] / n[0]
+            (lo if side == 0 else hi)[0] = d / n[0]  # x where the side meets y = 0
+            continue
         axis = int(np.argmax(np.abs(n)))
-        if np.count_nonzero(np.abs(n) > 1e-12) != 1:
-            raise FormatError(f"{where}: Domain plane with normal {n.tolist()} is not axis-aligned")
+        if np.count_nonzero(big) != 1:
+            raise FormatError(f"{where}: Domain plane with normal {n.tolist()} is neither axis-aligned nor an x side "
+                              "leaning in the plane (TexGen's sheared domain)")
         if n[axis] > 0:
             lo[axis] = d / n[axis]
         else:
             hi[axis] = d / n[axis]
+        if axis == 0:
+            tilt[0 if n[axis] > 0 else 1] = 0.0
     if any(v is None for v in lo[:2] + hi[:2]):
         raise FormatError(f"{where}: Domain planes do not bound x and y on both sides")
+    if abs(tilt[0] - tilt[1]) > 1e-9 * (1 + abs(tilt[0])):
+        raise FormatError(f"{where}: the Domain's x sides are not parallel (dx/dy {tilt[0]:g} and {tilt[1]:g})")
     z_range = (lo[2], hi[2]) if lo[2] is not None and hi[2] is not None else None
     # TexGen repeats yarns by their repeat vectors and clips them by the domain: with no repeats at
     # all, the domain is a coupon with free edges
     periodic = any(len(y.repeats) for y in yarns)
+    lx, ly = hi[0] - lo[0], hi[1] - lo[1]
+    shift = _shift(yarns, tilt[0] * ly, lx, ly, periodic, where)
+    if shift:  # the sheared domain's width is a difference of values printed to 13 digits: the
+        # yarns' repeat along x, where it agrees, is the exact one (2e-13 mm apart at 30 degrees)
+        along = [r[0] for y in yarns for r in y.repeats if abs(r[1]) == 0 and abs(r[0] - lx) < 1e-9 * lx]
+        lx = float(along[0]) if along else lx
     try:
-        return Cell(hi[0] - lo[0], hi[1] - lo[1], lo[0], lo[1], z_range, periodic)
+        return Cell(lx, ly, lo[0] + tilt[0] * lo[1], lo[1], z_range, periodic, shift)
     except TextileError as e:
         raise FormatError(f"{where}: Domain: {e}") from None
+
+
+def _shift(yarns: list[Yarn], leaning: float, lx: float, ly: float, periodic: bool, where: str) -> float:
+    """The cell's shift (Cell.shift) [mm]: the x part of the yarns' repeat across x where it leans
+    (CShearedTextileWeave2D: (sum of spacings) x (sin, cos) of the shear), else `leaning`, the
+    domain's own lean over its height (a sheared domain, or 0 for a box). Both must describe one
+    lattice: the lean of a sheared domain is the repeat's, up to whole cells along x."""
+    leans = [r for y in yarns for r in y.repeats if abs(r[0]) > 1e-9 * lx and abs(r[1]) > 1e-9 * ly]
+    if not leans:
+        if leaning and not periodic:
+            raise FormatError(f"{where}: a sheared Domain with no repeats (a coupon of a sheared fabric) is not "
+                              "supported")
+        if leaning and abs(leaning / lx - round(leaning / lx)) > 1e-6:
+            raise FormatError(f"{where}: the Domain is sheared ({leaning:g} mm along x over its height) but the yarns "
+                              "repeat along x and y: not one lattice")
+        return 0.0 if not leaning else float(leaning)
+    a2 = leans[0]
+    if any(np.abs(r - a2).max() > 1e-6 * max(lx, ly) for r in leans):
+        raise FormatError(f"{where}: the yarns repeat by different oblique vectors ({leans[0].tolist()}, ...): a "
+                          "sheared cell needs one lattice")
+    if abs(a2[1] - ly) > 1e-6 * ly:
+        raise FormatError(f"{where}: the yarns repeat by {a2.tolist()} across x, not one Domain height "
+                          f"({ly:g} mm) up")
+    if leaning and abs((a2[0] - leaning) / lx - round((a2[0] - leaning) / lx)) > 1e-6:
+        raise FormatError(f"{where}: the Domain leans {leaning:g} mm along x over its height, the yarns' repeat "
+                          f"{a2[0]:g} mm: not one lattice")
+    return float(a2[0])
 
 
 def read_tg3(path, textile: str | None = None) -> Textile:

@@ -60,6 +60,17 @@ def _section_points_for(yarn: Yarn) -> int:
     return max([40] + [4 * len(p.vertices) for p in polys])
 
 
+def _x_sides(c) -> tuple:
+    """The domain's two planes across x: x = x0 and x = x0 + lx, or for a sheared cell TexGen's
+    sheared domain (CShearedTextileWeave2D::GetDefaultDomain(true)): the parallelogram's sides along
+    a2 = (shift, ly) through (x0, y0) and (x0 + lx, y0), normals (cos g, -sin g, 0) and its opposite."""
+    if not c.shift:
+        return (((1, 0, 0), c.x0), ((-1, 0, 0), -(c.x0 + c.lx)))
+    g = np.arctan2(c.shift, c.ly)
+    cos, sin = float(np.cos(g)), float(np.sin(g))
+    return (((cos, -sin, 0), c.x0 * cos - c.y0 * sin), ((-cos, sin, 0), -(c.x0 + c.lx) * cos + c.y0 * sin))
+
+
 def tg3_tree(textile: Textile) -> ET.ElementTree:
     """The XML tree of a plain CTextile holding the textile's yarns as they are; a stack of plies
     as TexGen's CTextileLayered (its yarns in place, each ply's listed in a <Layer>)."""
@@ -69,8 +80,8 @@ def tg3_tree(textile: Textile) -> ET.ElementTree:
     c = textile.cell
     z0, z1 = c.z_range if c.z_range is not None else _z_extent(textile)
     dom = ET.SubElement(tex, "Domain", type="CDomainPlanes")
-    for normal, d in (((1, 0, 0), c.x0), ((-1, 0, 0), -(c.x0 + c.lx)), ((0, 1, 0), c.y0),
-                      ((0, -1, 0), -(c.y0 + c.ly)), ((0, 0, 1), z0), ((0, 0, -1), -z1)):
+    for normal, d in (_x_sides(c) + (((0, 1, 0), c.y0), ((0, -1, 0), -(c.y0 + c.ly)), ((0, 0, 1), z0),
+                                      ((0, 0, -1), -z1))):
         ET.SubElement(dom, "Plane", Normal=_num(normal), d=_num(d))
     for i, y in enumerate(textile.yarns):
         n_sec = _section_points_for(y)

@@ -68,6 +68,9 @@ def tile(textile: Textile, nx: int, ny: int, free_edges: bool = False) -> Textil
         check_count(f"coupon repeats {label}", n, 1, MAX_REPEATS)
     nx, ny = int(nx), int(ny)
     c = textile.cell
+    if c.shift:
+        raise TextileError(f"coupons of a sheared cell ({c.shear_angle:.4g} degrees) are not supported yet "
+                           "(docs/shear.md)")
     if not c.periodic:
         raise TextileError(f"{textile.name}: its cell has free edges already; only a periodic unit cell can be tiled")
     if free_edges:

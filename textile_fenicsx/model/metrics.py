@@ -122,10 +122,23 @@ def measure(textile: Textile, n: int = 200, comm=None) -> dict:
         "thickness": float(thickness),
         "crimp": crimp(textile),
         "vf": fibre_volume_fraction(yarn_vf, per_yarn, textile.cell.area * float(thickness)),
+        "areal": _areal(textile.cell, yarn_vf, per_yarn),
         "yarn_vf": yarn_vf,
         "fibre_data": vf_source,
         "sampling": {"grid": [n, n], "cell_area_per_sample": dA, "odd_parity_columns": local["odd"]},
     }
+
+
+def _areal(cell, yarn_vf: list[float], per_yarn: np.ndarray) -> dict:
+    """The cell in plan and what it holds per area: the lattice's area (lx ly; a sheared cell's
+    falls as cos of the shear at fixed spacings along the yarns), its shear angle [degrees], the
+    yarns' and the fibres' volume per area [mm^3/mm^2 = mm] (the fibres' times their density is the
+    areal density)."""
+    area = cell.area
+    fibres = float(np.dot(yarn_vf, per_yarn)) if yarn_vf is not None and len(yarn_vf) == len(per_yarn) else None
+    return {"cell_area_mm2": float(area), "shear_angle_deg": cell.shear_angle,
+            "yarn_volume_per_area_mm": float(per_yarn.sum()) / area,
+            "fibre_volume_per_area_mm": None if fibres is None else fibres / area}
 
 
 def _pair_overlaps(col: Columns, bot: np.ndarray, top: np.ndarray, xy: np.ndarray,

@@ -96,10 +96,11 @@ class Textile:
 
     def _check_closes(self, yarn: Yarn) -> None:
         """A periodic yarn must come back onto itself after whole cells: its last master node is
-        its first moved by (a lx, b ly, 0) with whole a, b (else the pattern is not periodic)."""
+        its first moved by a a1 + b a2 (the cell's lattice: (lx, 0) and (shift, ly)) with whole a, b
+        (else the pattern is not periodic)."""
         p, c = yarn.period, self.cell
-        with np.errstate(over="ignore"):
-            a, b = p[0] / c.lx, p[1] / c.ly
+        with np.errstate(over="ignore", invalid="ignore"):
+            a, b = c.lattice_coordinates(p[:2])[0]
         tol = 1e-6
         if not (np.isfinite(a) and np.isfinite(b)) or abs(a - round(a)) > tol or abs(b - round(b)) > tol \
                 or abs(p[2]) > tol * max(c.lx, c.ly) or (round(a), round(b)) == (0, 0):
@@ -112,6 +113,8 @@ class Textile:
         """One line: name, cell, yarns, master nodes, kinds of section (as DOLFINx and pyvista objects)."""
         kinds = sorted({type(x).__name__ for y in self.yarns for x in y.section.sections()})
         extra = "" if self.cell.periodic else ", free edges"
+        if self.cell.shift:
+            extra += f", sheared {self.cell.shear_angle:.4g} degrees"
         if self.tiling is not None:
             extra += f", a {self.tiling.nx} x {self.tiling.ny} coupon of {self.tiling.unit.name!r}"
         return (f"<Textile {self.name!r}: cell {self.cell.lx:g} x {self.cell.ly:g} mm{extra}, {len(self.yarns)} yarns "

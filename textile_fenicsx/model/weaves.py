@@ -1,6 +1,10 @@
 """Builders of idealised unit cells: 2D weaves from a pattern matrix and 3D orthogonal weaves.
 
 Conventions (mm): the cell is [0, Lx] x [0, Ly]; warp yarns run along x, weft yarns along y.
+A 2D weave sheared by an angle (`shear`, degrees; docs/shear.md) keeps its warps along x and turns
+its wefts to (sin, cos) of the angle, as TexGen's CShearedTextileWeave2D: the spacings stay measured
+along the yarns (a pin-jointed net), the cell is [0, Lx] x [0, Ly cos] with its rows shifted by
+Ly sin along x (Cell.shift).
 A 2D weave pattern P has one row per warp and one column per weft: P[i][j] = 1 when warp i passes
 over weft j. At a crossing the lower yarn's centre sits at its half height above z = 0 and the upper
 yarn's at the fabric thickness minus its half height; between crossings the paths are Bezier curves
@@ -102,14 +106,46 @@ def _check_fit(kind: str, widths, spacings, allow_overlap: bool):
                                "(neighbours would overlap; allow it with allow_overlap = true / --allow-overlap)")
 
 
+def jamming_angle(widths, spacings) -> float:
+    """The shear angle [degrees] at which yarns of these widths at these spacings (along the other
+    yarns) jam: sheared by g, neighbours stand spacing cos g apart across their length, so the
+    widest yarn for its spacing meets its neighbour at acos(width / spacing)."""
+    ratio = float(np.max(np.asarray(widths, float) / np.asarray(spacings, float)))
+    return float(np.degrees(np.arccos(min(ratio, 1.0))))
+
+
+def _check_shear(shear, widths: dict, spacings: dict, allow_overlap: bool) -> float:
+    """The shear angle [degrees] checked: finite, below 90 degrees in size, and below the angle at
+    which the yarns jam (unless overlaps are allowed)."""
+    try:
+        g = float(shear)
+    except (TypeError, ValueError):
+        raise TextileError(f"shear angle must be a number of degrees, got {shear!r}") from None
+    if not np.isfinite(g) or abs(g) >= 90.0:
+        raise TextileError(f"shear angle must be between -90 and 90 degrees, got {shear!r}")
+    if allow_overlap or g == 0.0:
+        return g
+    jam = {kind: jamming_angle(widths[kind], spacings[kind]) for kind in widths}
+    kind = min(jam, key=lambda k: jam[k])
+    if abs(g) >= jam[kind]:
+        k = int(np.argmax(widths[kind] / spacings[kind]))
+        raise TextileError(f"a shear of {abs(g):g} degrees jams the yarns: they jam at {jam[kind]:.2f} degrees, where "
+                           f"{kind} {k} (width {widths[kind][k]:g} mm, spacing {spacings[kind][k]:g} mm) meets its "
+                           f"neighbour (spacing x cos(shear) = width); give narrower yarns (--set width=W) or a "
+                           "smaller shear")
+    return g
+
+
 def weave2d(pattern, spacing=2.0, width=1.8, height=0.3, thickness=None, *, weft_spacing=None,
             weft_width=None, weft_height=None, power=None, allow_overlap: bool = False,
-            name: str = "weave2d") -> Textile:
+            shear: float = 0.0, name: str = "weave2d") -> Textile:
     """A 2D weave from a pattern matrix.
 
     spacing, width, height: warp values [mm], one for all or one per warp; weft_* default to them.
     thickness: fabric thickness [mm] (default: warp + weft height). power: section power (None:
-    ellipse). allow_overlap: accept widths larger than spacings.
+    ellipse). allow_overlap: accept widths larger than spacings. shear: the angle [degrees] the
+    wefts turn from y toward x (the module's conventions); refused at or beyond the yarns' jamming
+    angle (`jamming_angle`).
     """
     P = check_pattern(pattern)
     n_warp, n_weft = P.shape
@@ -123,6 +159,8 @@ def weave2d(pattern, spacing=2.0, width=1.8, height=0.3, thickness=None, *, weft
         check_positive("section power", power)
     _check_fit("warp", wy, sy, allow_overlap)
     _check_fit("weft", wx, sx, allow_overlap)
+    g = np.radians(_check_shear(shear, {"warp": wy, "weft": wx}, {"warp": sy, "weft": sx}, allow_overlap))
+    sin, cos = (np.sin(g), np.cos(g)) if g else (0.0, 1.0)  # exactly the unsheared weave at 0
     T = float(np.max(hy) + np.max(hx)) if thickness is None else check_length("fabric thickness", thickness)
     if T < max(hy.max(), hx.max()):
         raise TextileError(f"fabric thickness {T:g} mm is less than the tallest yarn")
@@ -131,22 +169,21 @@ def weave2d(pattern, spacing=2.0, width=1.8, height=0.3, thickness=None, *, weft
     y = np.cumsum(sy) - sy / 2  # warp positions along y
     yarns = []
     flat = np.array([1.0, 0.0, 0.0])
+    cell = Cell(Lx, Ly * cos, z_range=(-0.05 * T, 1.05 * T), shift=Ly * sin)
     for i in range(n_warp):
         z = np.where(P[i] == 1, T - hy[i] / 2, hy[i] / 2)
-        nodes = np.column_stack((x, np.full(n_weft, y[i]), z))
+        nodes = np.column_stack((x + y[i] * sin, np.full(n_weft, y[i] * cos), z))
         nodes = np.vstack((nodes, nodes[0] + (Lx, 0, 0)))
         yarns.append(Yarn(nodes, ConstantSection(_section(wy[i], hy[i], power)), "bezier",
-                          repeats=np.array([(Lx, 0, 0), (0, Ly, 0)]), tangents=np.tile(flat, (n_weft + 1, 1)),
-                          name=f"warp {i}"))
-    along_y = np.array([0.0, 1.0, 0.0])
+                          repeats=cell.repeats, tangents=np.tile(flat, (n_weft + 1, 1)), name=f"warp {i}"))
+    along_y = np.array([sin, cos, 0.0])
     for j in range(n_weft):
         z = np.where(P[:, j] == 1, hx[j] / 2, T - hx[j] / 2)
-        nodes = np.column_stack((np.full(n_warp, x[j]), y, z))
-        nodes = np.vstack((nodes, nodes[0] + (0, Ly, 0)))
+        nodes = np.column_stack((x[j] + y * sin, y * cos, z))
+        nodes = np.vstack((nodes, nodes[0] + cell.repeats[1]))
         yarns.append(Yarn(nodes, ConstantSection(_section(wx[j], hx[j], power)), "bezier",
-                          repeats=np.array([(Lx, 0, 0), (0, Ly, 0)]), tangents=np.tile(along_y, (n_warp + 1, 1)),
-                          name=f"weft {j}"))
-    return Textile(Cell(Lx, Ly, z_range=(-0.05 * T, 1.05 * T)), yarns, name=name)
+                          repeats=cell.repeats, tangents=np.tile(along_y, (n_warp + 1, 1)), name=f"weft {j}"))
+    return Textile(cell, yarns, name=name)
 
 
 def orthogonal(n_warp_stacks: int = 2, n_weft_columns: int = 4, warp_layers: int = 2, *,

@@ -99,6 +99,8 @@ def metrics_document(run) -> dict:
         "yarn_surface_volume_per_length_change": m.get("yarn_surface_volume_per_length_change"),
         "yarn_folded_fraction": m.get("yarn_folded_fraction"),
         "vf": pick("vf"),
+        "areal": pick("areal"),
+        "shear_angle_deg": run.textile.cell.shear_angle,
         "plies": run.textile.plies,
         "thickness_per_ply": {k: (None if v is None else v / run.textile.plies)
                               for k, v in pick("thickness").items()},

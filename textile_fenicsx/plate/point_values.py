@@ -71,14 +71,17 @@ def _nearest_cell_values(f: dolfinx.fem.Function, points: np.ndarray, tree, comm
     return v[np.argmin(d, axis=0), np.arange(len(points))]
 
 
-def nearest_images(msh: dolfinx.mesh.Mesh, xy: np.ndarray, periods: tuple[float, float]) -> np.ndarray:
+def nearest_images(msh: dolfinx.mesh.Mesh, xy: np.ndarray, periods: tuple[float, float] | np.ndarray) -> np.ndarray:
     """Points xy (N, 2), in the cell already, each moved by whole periods (lx, ly) [mm] to its image
     nearest msh's nodes; a point stays where no image is nearer (collective: the same on every
     rank). A plate that ends on a cell side has no mesh across it, where a point on that side is
     wrapped to: found at the image on the plate's side, it takes the plate's value there, not the
     nearest cell's at the plate's other end."""
     xy = np.asarray(xy, float).reshape(-1, 2)
-    shifts = np.array([(i * periods[0], j * periods[1]) for i in (0, -1, 1) for j in (0, -1, 1)])
+    if np.ndim(periods) == 2:  # the moves themselves, the first none (a sheared cell's Cell.neighbours)
+        shifts = np.asarray(periods, float)
+    else:
+        shifts = np.array([(i * periods[0], j * periods[1]) for i in (0, -1, 1) for j in (0, -1, 1)])
     nodes = msh.geometry.x[:, :2]
     local = np.full((len(shifts), len(xy)), np.inf)
     if len(nodes) and len(xy):

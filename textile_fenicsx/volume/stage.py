@@ -124,10 +124,18 @@ def fibre_fractions(textile: Textile, options: VolumeOptions) -> list[float]:
     return vf
 
 
+def refuse_sheared(textile: Textile) -> None:
+    """A sheared cell (docs/shear.md) has no volume mesh yet, nor its homogenisation or permeability."""
+    if textile.cell.shift:
+        raise TextileError(f"{textile.name}: a sheared cell ({textile.cell.shear_angle:.4g} degrees) has no volume "
+                           "mesh yet, so neither homogenisation nor permeability (docs/shear.md)")
+
+
 def volume_mesh(textile: Textile, options: VolumeOptions = VolumeOptions(),
                 comm: MPI.Comm = MPI.COMM_WORLD) -> VolumeMesh | None:
     """The periodic volume mesh of the textile (on rank 0; None on the other ranks). Collective:
     an error on rank 0 is raised on every rank."""
+    refuse_sheared(textile)
     result, error = None, None
     if comm.rank == 0:
         try:

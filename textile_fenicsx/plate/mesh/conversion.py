@@ -55,6 +55,9 @@ def ghost_strip(cell: Cell, x: np.ndarray, cells: np.ndarray,
     tol = 1e-9 * max(cell.lx, cell.ly)
     xs, cs, ts, n = [x], [cells], [tags], len(x)
     for axis, lo, hi, length in ((0, x0, x1, cell.lx), (1, y0, y1, cell.ly)):
+        if axis == 1 and cell.shift:
+            n = _sheared_strip(cell, x, cells, tags, n, (xs, cs, ts), tol)
+            continue
         on_lo = np.abs(x[:, axis] - lo) < tol
         on_hi = np.flatnonzero(np.abs(x[:, axis] - hi) < tol)
         pick = on_lo[cells].sum(axis=1) >= 2
@@ -82,3 +85,41 @@ def ghost_strip(cell: Cell, x: np.ndarray, cells: np.ndarray,
     return np.vstack(xs), np.vstack(cs), np.concatenate(ts)
 
 
+def _sheared_strip(cell: Cell, x: np.ndarray, cells: np.ndarray, tags: np.ndarray, n: int, out: tuple,
+                   tol: float) -> int:
+    """The strip beyond the top side of a sheared cell (docs/shear.md), appended to out's (nodes,
+    cells, tags); returns the node count. A bottom cell's copy moves up by ly and along x by the
+    shift, back by whole cells to where its side lies over the top side (the bottom's and the top's
+    vertices pair so, periodic_sides.box_with_marks): cells near the split of the top side move
+    differently, so an inner node gets a copy per move."""
+    x0, y0, y1 = cell.x0, cell.y0, cell.y0 + cell.ly
+    on_lo = np.abs(x[:, 1] - y0) < tol
+    on_hi = np.flatnonzero(np.abs(x[:, 1] - y1) < tol)
+    pick = on_lo[cells].sum(axis=1) >= 2
+    chosen = cells[pick]
+    side_x = np.where(on_lo[chosen], x[chosen, 0], 0.0).sum(axis=1) / on_lo[chosen].sum(axis=1)
+    moves = x0 + np.mod(side_x + cell.shift - x0, cell.lx) - side_x  # per cell: shift - k lx
+    moves = cell.shift - cell.lx * np.round((cell.shift - moves) / cell.lx)
+    tree = cKDTree(x[on_hi][:, [0]]) if len(on_hi) else None
+    copies: dict[tuple[int, float], int] = {}
+    xs, cs, ts = out
+    new_x, new_cells = [], np.empty_like(chosen)
+    for c, (nodes, move) in enumerate(zip(chosen, moves)):
+        for k, v in enumerate(nodes):
+            if on_lo[v]:
+                dist, j = tree.query([x[v, 0] + move]) if tree is not None else (np.inf, 0)
+                if dist > 10 * tol:
+                    raise GeometryError(f"ghost strip: the boundary node at ({x[v, 0]:.6f}, {x[v, 1]:.6f}) mm has no "
+                                        "periodic partner on the opposite side (a sheared cell)")
+                new_cells[c, k] = on_hi[int(j)]
+                continue
+            key = (int(v), round(float(move), 9))
+            if key not in copies:
+                copies[key] = n
+                new_x.append(x[v] + (move, cell.ly))
+                n += 1
+            new_cells[c, k] = copies[key]
+    xs.append(np.array(new_x).reshape(-1, 2))
+    cs.append(new_cells)
+    ts.append(tags[pick] + GHOST)
+    return n

@@ -6,6 +6,8 @@ neighbouring periods so that it covers the cell along the yarn; the projected me
 the cell. `footprint_area` measures the part inside the cell, independently of any mesh.
 """
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -64,12 +66,13 @@ def snap_to_neighbours(outlines: list[tuple[int, list[tuple[np.ndarray, np.ndarr
     x0, x1, y0, y1 = cell.bounds
     origin = np.array([x0, y0])
     period = np.array([cell.lx, cell.ly]) if cell.periodic else None
+    lattice = replace(cell, x0=0.0, y0=0.0) if cell.shift else None  # about the origin, as the points
     out = []
     done: list[np.ndarray] = []  # the chains of the yarns done so far
     for i, sides in outlines:
         if done:
             owner = np.concatenate([np.full(len(c), k) for k, c in enumerate(done)])
-            near = _Near(np.vstack(done) - origin, period)
+            near = _Near(np.vstack(done) - origin, period, lattice)
             sides = [(_same_as(r, near, owner, done, tol, cell), _same_as(l_, near, owner, done, tol, cell))
                      for r, l_ in sides]
         out.append((i, sides))
@@ -83,24 +86,42 @@ class _Near:
 
     NEIGHBOURS = 8
 
-    def __init__(self, points: np.ndarray, period: np.ndarray | None) -> None:
-        self.period = period
-        self.tree = cKDTree(self._wrapped(points), boxsize=period if period is not None else None)
+    def __init__(self, points: np.ndarray, period: np.ndarray | None, lattice: Cell | None = None) -> None:
+        self.period, self.lattice, self.n = period, lattice, len(points)
+        if lattice is not None:  # a sheared cell: scipy's periodic box is rectangular, so the points'
+            # copies in the 8 cells around are in the tree (a point, moved into the cell, finds its
+            # nearest within tol among them; tol is far below a cell)
+            wrapped = lattice.wrap(points)
+            self.tree = cKDTree(np.concatenate([wrapped + t for t in lattice.neighbours()]))
+        else:
+            self.tree = cKDTree(self._wrapped(points), boxsize=period if period is not None else None)
 
     def _wrapped(self, p: np.ndarray) -> np.ndarray:
         """p moved into the box [0, period) (np.mod returns the period itself for a point a round-off
         below a cell side, which scipy's periodic tree refuses)."""
+        if self.lattice is not None:
+            return self.lattice.wrap(p)
         if self.period is None:
             return p
         m = np.mod(p, self.period)
         return np.where(m >= self.period, m - self.period, m)
+
+    def translation(self, d: np.ndarray) -> np.ndarray:
+        """The whole cells nearest the in-plane move d (2,)."""
+        if self.lattice is not None:
+            return self.lattice.nearest_translation(d)[0]
+        assert self.period is not None
+        return np.round(d / self.period) * self.period
 
     def query(self, p: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
         """(distances, indices), each (len(p), NEIGHBOURS), nearest first; inf and n past tol."""
         k = min(self.NEIGHBOURS, self.tree.n)
         dist, idx = self.tree.query(self._wrapped(p), k=k,
                                     distance_upper_bound=tol)
-        return np.asarray(dist).reshape(len(p), k), np.asarray(idx).reshape(len(p), k)
+        dist, idx = np.asarray(dist).reshape(len(p), k), np.asarray(idx).reshape(len(p), k)
+        if self.lattice is not None:  # a copy's index is its point's; past tol stays n
+            idx = np.where(idx < self.tree.n, idx % self.n, self.n)
+        return dist, idx
 
 
 def _same_as(chain: np.ndarray, near: _Near, owner: np.ndarray, chains: list[np.ndarray], tol: float,
@@ -123,7 +144,7 @@ def _same_as(chain: np.ndarray, near: _Near, owner: np.ndarray, chains: list[np.
         other = chains[c]
         shift = np.zeros(2)  # the copy of that chain over this one (chains run over several cells)
         if near.period is not None:
-            shift = np.round((np.median(chain, axis=0) - np.median(other, axis=0)) / near.period) * near.period
+            shift = near.translation(np.median(chain, axis=0) - np.median(other, axis=0))
         d, _ = cKDTree(other + shift).query(chain[inside], distance_upper_bound=tol)
         if np.all(d < tol):
             return other + shift

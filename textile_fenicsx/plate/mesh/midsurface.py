@@ -163,15 +163,44 @@ def _parent_tag(projected: ProjectedMesh, cells: np.ndarray) -> np.ndarray:
     return tag[cells]
 
 
+def _crossing_orders(ms: MidSurfaces, by_tag: dict, mean_z0: dict) -> dict[tuple[int, int], float]:
+    """Per pair of yarns (a, b), a < b, the sum over the owned cells they both cover of z0_a - z0_b
+    (collective): positive where a lies above b over their crossing as a whole. In a sheared
+    idealised cell a crossing's overlap reaches past the point where the two paths have swapped
+    heights (beyond about 20 degrees for yarns 0.7 of their spacing wide, docs/shear.md), and the
+    cells' own orders would contradict each other at the nodes they share. A 2D weave's warp and
+    weft cross once per cell, so each pair takes the order of its crossing (only for sheared
+    cells: coupons of them are refused)."""
+    proj = ms.projected
+    owned = proj.mesh.topology.index_map(2).size_local
+    local: dict[tuple[int, int], float] = {}
+    for tag, yarns in by_tag.items():
+        cells = proj.cell_tags.indices[(proj.cell_tags.values == tag)]
+        cells = cells[cells < owned].tolist()
+        for a in yarns:
+            for b in yarns:
+                if a < b:
+                    local[(a, b)] = local.get((a, b), 0.0) + sum(mean_z0[a][c] - mean_z0[b][c] for c in cells)
+    total: dict[tuple[int, int], float] = {}
+    for part in proj.mesh.comm.allgather(local):
+        for key, value in part.items():
+            total[key] = total.get(key, 0.0) + value
+    return {**total, **{(b, a): -v for (a, b), v in total.items()}}
+
+
 def _contact_structure(ms: MidSurfaces, mean_z0: dict) -> None:
     """Stacking order per multi-yarn cell and the dof pairs of vertically adjacent yarns."""
     proj = ms.projected
     by_tag = {t: s for t, s in proj.coverage.items() if len(s) >= 2}
     pairs: dict[tuple[int, int], list] = {}
     apart: dict[tuple[int, int], tuple] = {}
+    crossing = _crossing_orders(ms, by_tag, mean_z0) if proj.cell is not None and proj.cell.shift else {}
     for tag, yarns in by_tag.items():
         for c in proj.cell_tags.indices[proj.cell_tags.values == tag]:
             order = sorted(yarns, key=lambda y: -mean_z0[y][int(c)])  # top first
+            for k in range(len(order) - 1):  # a sheared cell: each pair in its crossing's order
+                if crossing.get((order[k + 1], order[k]), 0.0) > 0:
+                    order[k], order[k + 1] = order[k + 1], order[k]
             for upper, lower in zip(order[:-1], order[1:]):
                 pairs.setdefault((upper, lower), []).append(int(c))
                 key = (min(upper, lower), max(upper, lower))
@@ -400,8 +429,13 @@ def _periodic_structure(ms: MidSurfaces) -> None:
     Xs = np.vstack([g[0] for g in sources])
     Gs = np.concatenate([g[1] for g in sources])
     target = Xi.copy()
-    target[target[:, 0] > x1 - tol, 0] -= cell.lx
-    target[target[:, 1] > y1 - tol, 1] -= cell.ly
+    if cell.shift:  # a row up is the shift along x; then back by whole cells (docs/shear.md)
+        up = target[:, 1] > y1 - tol
+        target[up] -= (cell.shift, cell.ly)
+        target[:, 0] = x0 + np.mod(target[:, 0] - x0 + tol, cell.lx) - tol
+    else:
+        target[target[:, 0] > x1 - tol, 0] -= cell.lx
+        target[target[:, 1] > y1 - tol, 1] -= cell.ly
     dist, k = cKDTree(Xs).query(target) if len(Xs) else (np.full(len(target), np.inf), None)
     if np.any(dist > tol):
         bad = Xi[np.argmax(dist)]
