@@ -9,11 +9,14 @@ import numpy as np
 import pytest
 from flow_cells import cylinder_cell
 from mpi4py import MPI
+from petsc4py import PETSc
 
 import dolfinx
 from textile_fenicsx.common.errors import TextileError
 from textile_fenicsx.flow import gebart
-from textile_fenicsx.flow.effective import MM2_TO_M2, PermeabilityOptions, permeability
+from textile_fenicsx.flow.effective import MM2_TO_M2, PermeabilityOptions, permeability, yarn_permeability
+from textile_fenicsx.flow.problem import DIRECT, ITERATIVE, ITERATIVE_AMG, FlowCellProblem
+from textile_fenicsx.homogenisation.periodic import bounding_box
 from textile_fenicsx.volume.files import VolumeFields
 
 CELLS = {"tet": dolfinx.mesh.CellType.tetrahedron, "hex": dolfinx.mesh.CellType.hexahedron}
@@ -418,5 +421,61 @@ def test_the_iterative_solver_agrees_with_the_direct_one(kind):
     assert np.allclose(iterative.K, direct.K, rtol=0, atol=1e-5 * scale)
     assert direct.options["iterations"] == [1, 1, 1] and "MUMPS" in direct.options["solver"]
     assert all(0 < n < 100 for n in iterative.options["iterations"]), iterative.options["iterations"]
+    assert "p-multigrid" in iterative.options["solver"]
     with pytest.raises(TextileError, match="flow solver must be one of"):
         PermeabilityOptions(solver="cg")
+
+
+def flow_problem(fields: VolumeFields, yarns, options: dict) -> FlowCellProblem:
+    """The flow cell problem of permeability() on `fields` with the PETSc options given."""
+    K_yarn, yarn = yarn_permeability(fields, PermeabilityOptions(yarns=yarns, fibre_radius=0.005))
+    T = dolfinx.fem.functionspace(fields.mesh, ("DG", 0, (3, 3)))
+    K_inv = dolfinx.fem.Function(T)
+    porous = yarn if yarns != "impermeable" else np.zeros_like(yarn)
+    inverse = np.zeros_like(K_yarn)
+    inverse[porous] = np.linalg.inv(K_yarn[porous])
+    K_inv.x.array.reshape(-1, 9)[T.dofmap.list[:, 0]] = inverse.reshape(-1, 9)
+    return FlowCellProblem(K_inv, bounding_box(fields.mesh), solid=yarn if yarns == "impermeable" else None,
+                           options=options)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("kind", ["tet", "hex"])
+@pytest.mark.parametrize("yarns", ["gebart", "impermeable"])
+def test_the_velocity_p_multigrid_coarse_level_is_galerkin(kind, yarns):
+    """The velocity block's p-multigrid (problem.ITERATIVE, flow/pmultigrid.py): the P1 velocity's
+    own matrix is P^T A_uu P, P the exact prolongation into the periodic, reduced velocity block,
+    but for its held rows (slaves, and the nodes of solid cells), which are the identity's; K by it
+    and by BoomerAMG on P2 itself (ITERATIVE_AMG) is MUMPS' to 1e-5, with the layer solid or a
+    Gebart yarn."""
+    fields = layered_fields(kind, (3, 3, 8), porous_below=0.5 if yarns == "gebart" else 0.3,
+                            direction=(1.0, 1.0, 0.5))
+    problem = flow_problem(fields, yarns, ITERATIVE)
+    try:
+        P, A1 = problem.velocity_levels
+        velocity = PETSc.IS().createGeneral(problem.reduction.fields[0].astype(PETSc.IntType), comm=problem.comm)
+        Auu = problem.A.createSubMatrix(velocity, velocity)
+        galerkin = Auu.PtAP(P)
+        difference = A1.copy()
+        difference.axpy(-1.0, galerkin, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        first = difference.getOwnershipRange()[0]
+        held = first + np.flatnonzero(np.abs(difference.getDiagonal().getArray() - 1.0) < 0.5)
+        assert problem.comm.allreduce(len(held)) > (0 if yarns == "gebart" else 100)
+        difference.zeroRows(held.astype(PETSc.IntType), 0.0)
+        assert difference.norm() < 1e-12 * A1.norm(), (difference.norm(), A1.norm())
+        for obj in (velocity, Auu, galerkin, difference):
+            obj.destroy()
+        K = {}
+        for name, options in (("pmg", ITERATIVE), ("amg", ITERATIVE_AMG), ("direct", DIRECT)):
+            solver = problem if name == "pmg" else flow_problem(fields, yarns, options)
+            try:
+                K[name] = np.array([solver.mean_velocity(w) for w in solver.solve(np.eye(3))]).T
+                assert name == "direct" or all(0 < n < 100 for n in solver.iterations), solver.iterations
+            finally:
+                if solver is not problem:
+                    solver.destroy()
+    finally:
+        problem.destroy()
+    scale = np.abs(K["direct"]).max()
+    assert np.allclose(K["pmg"], K["direct"], rtol=0, atol=1e-5 * scale)
+    assert np.allclose(K["amg"], K["direct"], rtol=0, atol=1e-5 * scale)

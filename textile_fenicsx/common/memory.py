@@ -67,13 +67,17 @@ FLOW_BYTES_PER_DOF = 24e3
 FLOW_REFERENCE_DOFS = 1.24e5
 
 
-# Its iterative solve (the matrix and its reduction R^T A R, the fieldsplit's blocks, BoomerAMG's
-# hierarchies, the Krylov vectors) grows as the matrix's entries: on the corrected satin's tet mesh at
-# 1.0 mm (936 921 Taylor-Hood unknowns, 90.7 M entries, 2026-12-07) the peak was 8.4 GB on one rank
-# and 5.5 GB a rank on two: 93 and 121 bytes an entry. The entries a row, by cell (Taylor-Hood of
-# degree 2, measured there and on the satin's 0.3 mm voxels: 23.3 M entries for 123 901 unknowns):
-# a voxel cell needs twice a tet cell's memory for its unknowns
-FLOW_ITERATIVE_BYTES_PER_ENTRY = 120
+# Its iterative solve (the matrix and its reduction R^T A R, the fieldsplit's blocks, the velocity's
+# P1 coarse level and BoomerAMG's hierarchies on it and on the pressure, the Krylov vectors) grows as
+# the matrix's entries. With the velocity's two-level p-multigrid (flow/problem.py ITERATIVE,
+# 2026-12-08) the peak was 6.46 GB on one rank and 3.08 GB a rank on two on the corrected satin's
+# tet mesh at 1.0 mm (936 842 Taylor-Hood unknowns, 90.7 M entries): 71 and 68 bytes an entry
+# (the most loaded rank's twice), set mostly by the assembly and R^T A R; on the satin's 0.3 mm
+# voxels (123 901 unknowns, 23.3 M entries) 1.51 GB serially, 65 bytes an entry. BoomerAMG on the
+# P2 velocity itself (ITERATIVE_AMG) took 8.4 GB and 4.3-5.5 GB a rank there: 93-121 bytes an
+# entry. The entries a row, by cell (Taylor-Hood of degree 2, measured on those two meshes): a
+# voxel cell needs twice a tet cell's memory for its unknowns
+FLOW_ITERATIVE_BYTES_PER_ENTRY = 80
 FLOW_ENTRIES_PER_ROW = {"tetrahedron": 97, "hexahedron": 188}
 
 

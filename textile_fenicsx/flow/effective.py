@@ -218,9 +218,7 @@ def permeability(fields: VolumeFields, options: PermeabilityOptions | None = Non
                             ", ".join("xyz"[i] for i in np.flatnonzero(closed)))
         seconds["solves"] = time.perf_counter() - t1
         dofs = problem.dofs
-        solver = ("FGMRES, block preconditioner (Schur, upper): BoomerAMG on the velocity, selfp + BoomerAMG on "
-                  f"the pressure; rtol {ITERATIVE['ksp_rtol']:g}" if problem.iterative else
-                  "MUMPS LU (direct), one factorisation for the three load cases")
+        solver = problem.description
         iterations = problem.iterations
     finally:
         problem.destroy()
