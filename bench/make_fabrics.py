@@ -249,6 +249,13 @@ def family():
                    "\"Can't reduce outer weft and binder to fit without exceeding max Vf\")"),
         ortho("ortho_w3f4_fibres_refine_t2.4", (3, 4), fibres=True, refine=True, thickness=2.4,
               note="3 warp / 4 weft layers refined to 2.4 mm (nominal 2.57)"),
+        # refined thinner than their yarns stack: pressed to it by --mould auto (issue 74)
+        ortho("ortho_w2f3_fibres_refine_t1.6", (2, 3), fibres=True, refine=True, thickness=1.6,
+              note="refine to 1.6 mm, thinner than the yarns stack"),
+        ortho("ortho_w2f3_fibres_refine_t1.5", (2, 3), fibres=True, refine=True, thickness=1.5,
+              note="refine to 1.5 mm, thinner than the yarns stack"),
+        ortho("ortho_w3f4_fibres_refine_t2.2", (3, 4), fibres=True, refine=True, thickness=2.2,
+              note="3 warp / 4 weft layers refined to 2.2 mm, thinner than the yarns stack"),
         l2l("l2l_w2f3_b3_0011_fibres", (2, 3), 3, [[0, 0, 1, 1], [1, 1, 0, 0]],
             "l2l_w2f3_b3_0011 with fibre data (TexGen has no refine for layer-to-layer weaves)", fibres=True),
         ai("angleinterlock_w2f3_y6_fibres", (2, 3), 6, [(0, 1), (3, 3)],

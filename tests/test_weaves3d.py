@@ -170,3 +170,113 @@ def test_the_refined_orthogonal_weave_settles_in_its_mould(name):
     assert r.solution.max_penetration <= 1e-6
     assert "settle" in r.times
     assert r.verdict["passed"], r.verdict["failures"]
+
+
+# ---- a 3D weave refined thinner than its yarns stack (issue 74): the mould opened to them ----
+
+@pytest.mark.mpi
+def test_the_rigid_stack_is_the_mould_the_plates_need_and_cut_margins_fit_a_thinner_one():
+    # two flat strips 0.2 mm thick crossing (plates of uniform thickness): without their contact
+    # margins they stack 0.4 mm, with the least gap asked for between them and at each platen
+    # (0.43 with 0.01); with the margins their P2 gap needs where their edges cross (the ellipse of
+    # rays grazing an edge: 0.078 mm) they need more (flattening.rigid_stack). The constraints hold
+    # node by node, so the bound is sharp: the solve converges in a mould AUTO_MOULD_ROOM thicker and
+    # no position fits one 0.1 % thinner. With the margins cut where the stack is thicker than 0.42
+    # mm (fit_margins), it needs 0.42 and converges in a mould of 0.42 and AUTO_MOULD_ROOM more.
+    # The same on any partition (every node gathered)
+    from test_solver import crossing_strips
+
+    from textile_fenicsx.pipeline.stages import AUTO_MOULD_ROOM
+    from textile_fenicsx.plate.mesh.midsurface import mid_surfaces
+    from textile_fenicsx.plate.mesh.projected import projected_mesh
+    from textile_fenicsx.plate.solver import ContactProblem, Mould, SolverOptions, solve_problem
+    from textile_fenicsx.plate.solver.flattening import fit_margins, rigid_stack
+
+    def fits(ms, thickness):
+        problem = ContactProblem(ms, options=SolverOptions(max_iterations=60),
+                                 mould=Mould(-thickness / 2, thickness / 2))
+        try:
+            return solve_problem(problem).converged
+        finally:
+            problem.destroy()
+
+    ms = mid_surfaces(projected_mesh(crossing_strips(flat=True), MeshOptions(0.5)))
+    assert fit_margins(ms, np.inf) == (0, pytest.approx(0.4, abs=1e-12))  # nothing cut; the plates alone
+    assert fit_margins(ms, np.inf, 0.01)[1] == pytest.approx(0.43, abs=1e-12)  # platen, pair, platen
+    need, (x, y) = rigid_stack(ms)
+    assert 0.45 < need < 0.5
+    assert abs(x - 2.0) <= 0.5 + 1e-9 and abs(y - 2.0) <= 0.5 + 1e-9  # at the crossing
+    assert MPI.COMM_WORLD.allgather(need) == [need] * MPI.COMM_WORLD.size
+    assert fits(ms, need * (1 + AUTO_MOULD_ROOM)) and not fits(ms, need * (1 - 1e-3))
+    changed, bare = fit_margins(ms, 0.42)
+    assert changed > 0 and bare == pytest.approx(0.4, abs=1e-12)
+    assert rigid_stack(ms)[0] <= 0.42 + 1e-12
+    assert fits(ms, 0.42 * (1 + AUTO_MOULD_ROOM))
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("woven", [0.55, 0.585])
+def test_a_weave_said_to_be_woven_thinner_than_its_yarns_stack_is_solved_in_the_mould_they_need(woven, caplog):
+    # a plain weave of two 0.3 mm yarns at each crossing said to be woven to 0.55 mm, 8 % thinner
+    # than its plates stack (TexGen's orthogonal weave refined to 1.6 mm needs 5.5 % more than its
+    # mould with its contact margins): the automatic mould would stall (no position fits it, and
+    # _opened_mould's openings reach 4 % at most), so room is made at once (_room_for_stack): the
+    # margins are cut where the stack is thicker than the mould, and as the plates alone are thicker
+    # too, the mould is opened to them and AUTO_MOULD_ROOM more, with a warning naming the
+    # thicknesses. At 0.585 mm, 2.4 % thinner than the stack with its margins (0.5993 mm), that is
+    # within the openings' reach, so the mould is tried first: the solve stalls at 0.0058 mm of
+    # penetration, too much to open by, and room is made then. Either way the run converges, the
+    # yarns fill that mould (0.5987 mm of plates, and AUTO_MOULD_ROOM), and it passes its check
+    from dataclasses import replace
+
+    from textile_fenicsx.model.weaves import build
+    from textile_fenicsx.pipeline.stages import AUTO_MOULD_ROOM
+    from textile_fenicsx.plate.mesh.midsurface import plate_extent
+
+    textile = replace(build("plain"), thickness=woven)
+    with caplog.at_level("INFO"):  # (the stalled solve's reason is logged at INFO)
+        r = run(textile, Settings(mesh=MeshOptions(0.5), remesh=0), MPI.COMM_WORLD)
+    assert r.converged, r.solution.reason
+    assert r.mould is not None
+    assert 0.6 < r.mould.thickness < 0.6 * 1.03  # the 0.6 mm stack, thickened by the slopes and margins
+    lo, hi = plate_extent(r.midsurfaces, r.solution.w)
+    assert r.mould.bottom - 1e-6 <= lo and hi <= r.mould.top + 1e-6  # inside it
+    assert hi - lo >= r.mould.thickness / (1 + AUTO_MOULD_ROOM) - 1e-6  # and as thick as the stack needs
+    assert f"{woven:.4f} mm" in caplog.text and "do not flatten" in caplog.text
+    assert ("no position of the yarns keeps every contact inside the mould" in caplog.text) == (woven == 0.585)
+    assert r.verdict["passed"], r.verdict["failures"]
+
+
+@pytest.mark.mpi
+@pytest.mark.slow  # 100 s serially at seed 0.5 (its regions take 40-50 s to mesh)
+def test_texgens_orthogonal_weave_refined_thinner_than_its_stack_is_solved_at_its_woven_thickness():
+    # TexGen's refine to 1.6 mm (bench/make_fabrics.py) fits its sections to 1.6 mm (its plates stack
+    # 1.5998 mm at most at the start), but they touch over whole areas, and with the contact margins
+    # that keep the P2 gaps from overstating the model's between the nodes (up to 0.041 mm a pair at
+    # its warps' edges) its stack needs 1.6888 mm after the slopes: the default command stopped with
+    # "no position of the yarns keeps every contact inside the mould". Its margins are now cut where
+    # a stack does not fit (flattening.fit_margins), and the mould opened only as far as the plates
+    # alone need, 1.6014 mm, and AUTO_MOULD_ROOM more: it converges within 1 % of its woven
+    # thickness and the corrected model's overlap is within the check's limits. The warps and
+    # wefts keep their volume per length (rigid, to 1e-4). Its binders do not, quite: pressed flat on
+    # their crowns their corners square off and their legs, whose sections TexGen made 40 % larger
+    # than the crowns', take 11 % more of the path: every section's area is kept, but one binder's
+    # volume per length grows 1.09 % (the check's limit is 1 %), the known failure left (issue 74)
+    from textile_fenicsx.pipeline.stages import AUTO_MOULD_ROOM
+
+    t = load_model(REPO / "reference" / "fabrics" / "ortho_w2f3_fibres_refine_t1.6.tg3")
+    r = run(t, Settings(MeshOptions(0.5)), comm=MPI.COMM_WORLD)
+    assert r.converged, r.solution.reason
+    assert r.mould is not None
+    assert 1.6 <= r.mould.thickness <= 1.6014 * (1 + AUTO_MOULD_ROOM) + 1e-3
+    m = r.metrics
+    before, after = m["before"], m["after"]
+    # within 1 % of its woven thickness (the corrected sections reach a little past the plates'
+    # nodes, 0.0024 mm beyond the mould here; t1.7's 0.002 beyond its 1.7054 mm)
+    assert 1.6 <= after["thickness"] <= 1.6 * 1.01
+    failures = m["verdict"]["failures"]
+    assert all(f["check"] == "yarn surface volume" and f["yarn"] in (2, 5) for f in failures), failures
+    change = m["yarn_surface_volume_per_length_change"]
+    assert max(abs(c) for i, c in enumerate(change) if i not in (2, 5)) < 1e-4
+    assert max(change[2], change[5]) < 0.012
+    assert after["interpenetration"]["volume"] <= 0.01 * before["interpenetration"]["volume"]

@@ -41,7 +41,7 @@ from textile_fenicsx.plate.solver import (
     SolverOptions,
     solve_problem,
 )
-from textile_fenicsx.plate.solver.flattening import law_thickness
+from textile_fenicsx.plate.solver.flattening import fit_margins, law_thickness, rigid_stack
 
 __all__ = ["Run", "Settings", "run"]  # Settings and Run live in runs.py
 
@@ -75,6 +75,14 @@ FINER = 0.7
 AUTO_MOULD_OPENING = 10.0
 AUTO_MOULD_OPENINGS = 2
 AUTO_MOULD_SLACK = 2e-2
+# Where the yarns stacked at a node with their contact margins need more of the automatic mould
+# than its openings reach, ROOM_FOR_STACK of it (flattening.rigid_stack; TexGen's orthogonal weave
+# refined to 1.6 mm: 1.6888 mm), or where those openings fell short, room is made at once
+# (_room_for_stack): the margins cut node by node to fit the mould less AUTO_MOULD_ROOM (the
+# interior point's room inside its constraints), and where the plates alone do not fit, the mould
+# opened to them and AUTO_MOULD_ROOM more, with a warning; the yarns do not flatten
+ROOM_FOR_STACK = (1.0 + AUTO_MOULD_SLACK) ** AUTO_MOULD_OPENINGS
+AUTO_MOULD_ROOM = 5e-3
 
 # A weave with binder legs whose corrected yarns overlap is solved again this many times at most,
 # with the overlap added to the contact margins where it lies (_settled)
@@ -200,13 +208,16 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
             log.info("slopes: thickness changed by up to %.2f %%; margins widened by up to %.1e mm where the gap "
                      "dips between nodes; solving again", 100 * change, dip)
             first = solution
-            mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile), settings.mould == "auto")
+            auto = settings.mould == "auto"  # its mould may open: the problem is kept to move its platens
+            mould = _closing_mould(ms, solution.w, settings.mould_thickness(textile), auto)
+            if auto and mould is not None:  # yarns stacked thicker than the woven thickness: room made for them
+                mould = _room_for_stack(mould, ms, settings.solver)
+            woven = mould
             if mould is None:  # the same plates, pairs and pattern: only the gaps moved
                 problem.renew(settings.solver)
             else:
                 problem.destroy()
                 problem = ContactProblem(ms, settings.plate, settings.solver, loads=loads, mould=mould)
-            auto = settings.mould == "auto"  # its mould may open: the problem is kept to move its platens
             solution = solve_problem(problem, start=first, keep=auto)
             for _ in range(AUTO_MOULD_OPENINGS if auto else 0):
                 opened = _opened_mould(mould, solution, settings.solver)
@@ -217,6 +228,14 @@ def _run(textile: Textile, settings: Settings, comm: MPI.Comm, on_stage: Callabl
                 solution = solve_problem(problem, start=first, keep=True)
                 solution.iterations += stalled.iterations  # every Newton step is counted
                 solution.history = stalled.history + solution.history
+            if auto and woven is not None and not solution.converged and "inside the mould" in solution.reason:
+                roomy = _room_for_stack(woven, ms, settings.solver, reach=1.0)  # the openings fell short
+                if roomy is not woven:
+                    mould, stalled = roomy, solution
+                    problem.renew(settings.solver, mould)
+                    solution = solve_problem(problem, start=first, keep=True)
+                    solution.iterations += stalled.iterations
+                    solution.history = stalled.history + solution.history
             solution.iterations += first.iterations
             solution.history = first.history + solution.history
     finally:  # (destroying twice is harmless: the second solve has freed it already)
@@ -344,6 +363,34 @@ def _closing_mould(ms: MidSurfaces, w: list, thickness: float | None, at_most_in
     log.info("mould: the fabric came out %.4f mm thick, the mould is %.4f mm: solving again between its "
              "platens (z = %.4f, %.4f mm)", hi - lo, thickness, mid - thickness / 2, mid + thickness / 2)
     return Mould(mid - thickness / 2, mid + thickness / 2)
+
+
+def _room_for_stack(mould: Mould, ms: MidSurfaces, options: SolverOptions, reach: float = ROOM_FOR_STACK) -> Mould:
+    """The automatic mould, or where the yarns stacked at a node need more than `reach` of it
+    (flattening.rigid_stack: their plates' thickness, the contact margins and the least gap; by
+    default beyond what _opened_mould's openings reach), room made for them: the margins cut
+    node by node where the stack with them is thicker than the mould less AUTO_MOULD_ROOM
+    (flattening.fit_margins), and where the plates alone are thicker than that, the mould opened
+    to them and AUTO_MOULD_ROOM more, about the same mid-plane; with a warning naming what was
+    done and the thicknesses (a 3D weave's yarns do not flatten: DESIGN.md 5a). TexGen's
+    orthogonal weave refined to 1.6 mm: its plates stack 1.5998 mm thick at most, but its sections
+    touch over whole areas and its margins (up to 0.041 mm a pair at its warps' edges) sum to
+    1.6888 mm down a stack (after the slopes)."""
+    need, (x, y) = rigid_stack(ms, options.min_gap)
+    if need <= reach * mould.thickness:
+        log.info("mould: the yarns stacked at (%.3f, %.3f) mm need %.5f mm of its %.5f mm", x, y, need, mould.thickness)
+        return mould
+    bare = fit_margins(ms, np.inf, options.min_gap)[1]  # (nothing scaled)
+    opened = max(mould.thickness, bare * (1 + AUTO_MOULD_ROOM))
+    changed = fit_margins(ms, opened / (1 + AUTO_MOULD_ROOM), options.min_gap)[0]
+    log.warning("mould: the yarns stacked at (%.3f, %.3f) mm need %.4f mm with their contact margins, %.1f %% more "
+                "than the mould (%.4f mm, the thickness the model is woven to); their sections do not flatten in a "
+                "3D weave: the margins are cut at %d nodes where the stack with them is thicker than the mould%s",
+                x, y, need, 100 * (need / mould.thickness - 1), mould.thickness, changed,
+                "" if opened == mould.thickness else
+                f", and the plates alone stack {bare:.4f} mm: the mould is opened to {opened:.4f} mm")
+    mid = (mould.bottom + mould.top) / 2
+    return Mould(mid - opened / 2, mid + opened / 2)
 
 
 def _opened_mould(mould: Mould | None, solution: Solution, options: SolverOptions) -> Mould | None:

@@ -26,7 +26,8 @@ from textile_fenicsx.plate.mesh.midsurface import MidSurfaces
 from textile_fenicsx.plate.solver.numbering import BOTTOM, TOP, Periodicity
 from textile_fenicsx.plate.solver.parameters import Compaction
 
-__all__ = ["Flattening", "PackingRows", "flattening_terms", "law_thickness", "packing_rows", "thinnest_stack"]
+__all__ = ["Flattening", "PackingRows", "fit_margins", "flattening_terms", "law_thickness", "packing_rows",
+           "rigid_stack", "thinnest_stack"]
 
 
 # A plate's thickness falls to 0 at the yarn's edges (the rays graze its section there), where the
@@ -174,3 +175,83 @@ def thinnest_stack(ms: MidSurfaces, compaction: Compaction) -> tuple[float, tupl
     mine = (float(stack[k]), tuple(map(float, ms.V.tabulate_dof_coordinates()[k, :2]))) if k >= 0 \
         else (0.0, (np.nan, np.nan))
     return max(ms.V.mesh.comm.allgather(mine), key=lambda m: m[0])
+
+
+
+def _stacks(ms: MidSurfaces, min_gap: float, margins: bool = True):
+    """Every node's stack of yarns (rigid_stack), gathered over the ranks: (its global index, its
+    in-plane position (x, y), the height of its tallest chain [mm]) per node, and the global nodes
+    of this rank's pairs (the same order as ms.contact_dofs); margins=False: the pairs' margins
+    left out (the least gap kept)."""
+    comm, imap = ms.V.mesh.comm, ms.V.dofmap.index_map
+    xy = ms.V.tabulate_dof_coordinates()[:, :2]
+    position = {y.yarn: k for k, y in enumerate(ms.yarns)}
+    nodes, edges, mine = [], [], []  # (yarn, global node, t, x, y); (upper, lower, global node, margin)
+    for k, y in enumerate(ms.yarns):
+        parent = y.to_parent
+        nodes.append(np.column_stack((np.full(len(parent), k), imap.local_to_global(parent.astype(np.int32)),
+                                      y.t.x.array[: len(parent)], xy[parent])))
+    for (u, l), pairs in ms.contact_dofs.items():
+        at = imap.local_to_global(ms.yarns[position[u]].to_parent[pairs[:, 0]].astype(np.int32))
+        margin = ms.contact_margin.get((u, l), np.zeros(len(pairs))) if margins else np.zeros(len(pairs))
+        edges.append(np.column_stack((np.full(len(pairs), position[u]), np.full(len(pairs), position[l]), at,
+                                      margin)))
+        mine.append(at)
+    node = np.concatenate(comm.allgather(np.concatenate(nodes) if nodes else np.zeros((0, 5))))
+    edge = np.concatenate(comm.allgather(np.concatenate(edges) if edges else np.zeros((0, 4))))
+    n_global = int(node[:, 1].max()) + 1 if len(node) else 1
+    keys, at = np.unique(node[:, 0].astype(np.int64) * n_global + node[:, 1].astype(np.int64), return_inverse=True)
+    t = np.zeros(len(keys))
+    np.maximum.at(t, at, node[:, 2])
+    upper = np.searchsorted(keys, edge[:, 0].astype(np.int64) * n_global + edge[:, 2].astype(np.int64))
+    lower = np.searchsorted(keys, edge[:, 1].astype(np.int64) * n_global + edge[:, 2].astype(np.int64))
+    gap = edge[:, 3] + min_gap
+    height: np.ndarray = t.copy()
+    for _ in range(len(ms.yarns)):  # a chain has at most one yarn of each
+        below = np.zeros(len(keys))
+        np.maximum.at(below, upper, height[lower] + gap)
+        grown = t + below
+        if np.array_equal(grown, height):
+            break
+        height = grown
+    glob, where, of = np.unique(node[:, 1].astype(np.int64), return_index=True, return_inverse=True)
+    tallest = np.zeros(len(glob))
+    np.maximum.at(tallest, of, height[at] + 2 * min_gap)
+    return glob, node[where, 3:5], tallest, mine
+
+
+def rigid_stack(ms: MidSurfaces, min_gap: float = 0.0) -> tuple[float, tuple[float, float]]:
+    """The thinnest mould that holds the yarns as they are (rigid plates, no flattening): the
+    largest, over the mesh nodes, of the yarns stacked there, each its plate's thickness t, with
+    each contact pair's margin at the node (midsurface.contact_margin) and min_gap between them and
+    at both platens [mm], and where (x, y) [mm]. A pair's constraint and a platen's hold node by
+    node (the plates bend between them), so a mould is feasible exactly when it is at least this
+    thick: a node's stack is its longest chain of pairs, bottom to top (an upper yarn's height over
+    the bottom platen is its t over the highest of the lower yarns' heights plus their margin).
+    Collective; the same on any partition: every rank's nodes, pairs and margins are gathered by
+    global node (a node seen by two ranks keeps its largest margin)."""
+    _, xy, tallest, _ = _stacks(ms, min_gap)
+    if not len(tallest):
+        return 0.0, (np.nan, np.nan)
+    k = int(np.argmax(tallest))
+    return float(tallest[k]), (float(xy[k, 0]), float(xy[k, 1]))
+
+
+def fit_margins(ms: MidSurfaces, thickness: float, min_gap: float = 0.0) -> tuple[int, float]:
+    """The contact margins scaled down, node by node, where the yarns stacked there with them are
+    thicker than `thickness` [mm] (rigid_stack): at a node whose tallest chain is H with its
+    margins and H0 without, every pair's margin there times f = (thickness - H0) / (H - H0) (0 where
+    H0 >= thickness), so that every chain through it, t + f m <= (1 - f) H0 + f H, fits. The
+    margins keep the P2 gap from overstating the model's between the nodes (midsurface._gap_margins);
+    summed down a stack they ask for more than the model's own thickness where the yarns touch
+    over whole areas (TexGen's refine packs its sections so). Returns the nodes changed and the
+    thickness the stacks need without margins, max H0 [mm] (collective, partition-free)."""
+    glob, _, with_margins, mine = _stacks(ms, min_gap)
+    _, _, without, _ = _stacks(ms, min_gap, margins=False)
+    over = with_margins > thickness
+    factor = np.ones(len(glob))
+    factor[over] = np.clip((thickness - without[over]) / (with_margins[over] - without[over]), 0.0, 1.0)
+    for key, at in zip(ms.contact_dofs, mine):
+        if key in ms.contact_margin:
+            ms.contact_margin[key] = ms.contact_margin[key] * factor[np.searchsorted(glob, at)]
+    return int(np.sum(over)), float(np.max(without, initial=0.0))
